@@ -1,0 +1,262 @@
+//! The two cache levels. [`MemoryCache`] holds results within a process (shared by
+//! every run of a session, e.g. the variants of a sweep); [`DiskCache`] keeps them
+//! across runs.
+//!
+//! A disk entry is one file `DIR/v{FORMAT_VERSION}/ab/<key>.entry`:
+//! magic `FUSEGRPH`, format version (u32), payload length (u64), blake3 of the
+//! payload (32 bytes), payload (metrics, then outputs). It is written to a unique
+//! temporary file in the same folder and renamed into place, so readers see either
+//! nothing or a whole entry and concurrent writers of one key both succeed. A
+//! truncated or corrupt entry fails its length or checksum test and is recomputed.
+
+use crate::hash::hash_path;
+use crate::key::NodeKey;
+use crate::op::Outputs;
+use crate::value::{Reader, Value, Writer, encode_value};
+use std::collections::{BTreeMap, HashMap};
+use std::io;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+
+/// Version of the entry layout and of the value encoding; bump on any change.
+pub const FORMAT_VERSION: u32 = 1;
+const MAGIC: &[u8; 8] = b"FUSEGRPH";
+const HEADER_LEN: usize = 8 + 4 + 8 + 32;
+
+/// What a node produced: its outputs and its metrics.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct CacheEntry {
+    /// Output values by port.
+    pub outputs: Outputs,
+    /// Metrics by name.
+    pub metrics: BTreeMap<String, f64>,
+}
+
+impl CacheEntry {
+    /// Whether every `Path` output still holds the content it was recorded with
+    /// (a cached path that was edited or deleted makes the entry stale).
+    pub fn paths_intact(&self) -> Result<(), String> {
+        for (port, value) in &self.outputs.0 {
+            if let Value::Path(p) = value {
+                match hash_path(&p.path) {
+                    Ok(h) if h.to_hex().as_str() == p.content_hash => {}
+                    Ok(_) => {
+                        return Err(format!(
+                            "output `{port}`: {} was modified",
+                            p.path.display()
+                        ));
+                    }
+                    Err(e) => return Err(format!("output `{port}`: {e}")),
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Results by key, in memory.
+#[derive(Debug, Default)]
+pub struct MemoryCache {
+    entries: Mutex<HashMap<NodeKey, Arc<CacheEntry>>>,
+}
+
+impl MemoryCache {
+    /// An empty cache.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The entry for `key`.
+    pub fn get(&self, key: &NodeKey) -> Option<Arc<CacheEntry>> {
+        self.entries
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .get(key)
+            .cloned()
+    }
+
+    /// Stores the entry for `key`.
+    pub fn insert(&self, key: NodeKey, entry: Arc<CacheEntry>) {
+        self.entries
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .insert(key, entry);
+    }
+}
+
+/// The outcome of looking a key up on disk.
+#[derive(Debug)]
+pub enum Lookup {
+    /// A whole, verified entry.
+    Hit(CacheEntry),
+    /// No entry.
+    Miss,
+    /// An entry that failed verification, and why. It should be recomputed.
+    Corrupt(String),
+}
+
+/// Results by key, on disk.
+#[derive(Debug, Clone)]
+pub struct DiskCache {
+    dir: PathBuf,
+}
+
+static TEMP_COUNTER: AtomicU64 = AtomicU64::new(0);
+
+impl DiskCache {
+    /// A cache rooted at `dir` (created if missing).
+    pub fn open(dir: &Path) -> io::Result<DiskCache> {
+        let dir = dir.join(format!("v{FORMAT_VERSION}"));
+        std::fs::create_dir_all(&dir).map_err(|e| {
+            io::Error::new(e.kind(), format!("cache folder {}: {e}", dir.display()))
+        })?;
+        Ok(DiskCache { dir })
+    }
+
+    /// Where the entry for `key` lives.
+    pub fn entry_path(&self, key: &NodeKey) -> PathBuf {
+        let hex = key.hex();
+        self.dir.join(&hex[..2]).join(format!("{hex}.entry"))
+    }
+
+    /// Reads and verifies the entry for `key`.
+    pub fn load(&self, key: &NodeKey) -> Lookup {
+        let path = self.entry_path(key);
+        match std::fs::read(&path) {
+            Ok(bytes) => match decode_entry(&bytes) {
+                Ok(entry) => Lookup::Hit(entry),
+                Err(why) => Lookup::Corrupt(format!("{}: {why}", path.display())),
+            },
+            Err(e) if e.kind() == io::ErrorKind::NotFound => Lookup::Miss,
+            Err(e) => Lookup::Corrupt(format!("{}: {e}", path.display())),
+        }
+    }
+
+    /// Writes the entry for `key` atomically (temporary file, then rename).
+    pub fn store(&self, key: &NodeKey, entry: &CacheEntry) -> io::Result<()> {
+        let path = self.entry_path(key);
+        let folder = path.parent().expect("entry has a folder");
+        std::fs::create_dir_all(folder)?;
+        let temp = folder.join(format!(
+            ".{}.{}.{}.tmp",
+            key.hex(),
+            std::process::id(),
+            TEMP_COUNTER.fetch_add(1, Ordering::Relaxed)
+        ));
+        let bytes = encode_entry(entry);
+        let result = std::fs::write(&temp, &bytes).and_then(|()| std::fs::rename(&temp, &path));
+        if result.is_err() {
+            let _ = std::fs::remove_file(&temp);
+        }
+        result
+    }
+
+    /// Removes the entry for `key`, if any.
+    pub fn remove(&self, key: &NodeKey) {
+        let _ = std::fs::remove_file(self.entry_path(key));
+    }
+}
+
+fn encode_entry(entry: &CacheEntry) -> Vec<u8> {
+    let mut payload = Vec::new();
+    let mut w = Writer(&mut payload);
+    w.usize(entry.metrics.len());
+    for (name, value) in &entry.metrics {
+        w.str(name);
+        w.f64(*value);
+    }
+    w.usize(entry.outputs.0.len());
+    for (port, value) in &entry.outputs.0 {
+        w.str(port);
+        encode_value(value, w.0);
+    }
+    let mut bytes = Vec::with_capacity(HEADER_LEN + payload.len());
+    bytes.extend_from_slice(MAGIC);
+    bytes.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    bytes.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+    bytes.extend_from_slice(blake3::hash(&payload).as_bytes());
+    bytes.extend_from_slice(&payload);
+    bytes
+}
+
+fn decode_entry(bytes: &[u8]) -> Result<CacheEntry, String> {
+    if bytes.len() < HEADER_LEN || &bytes[..8] != MAGIC {
+        return Err(format!(
+            "not a cache entry ({} bytes, bad header)",
+            bytes.len()
+        ));
+    }
+    let version = u32::from_le_bytes(bytes[8..12].try_into().expect("4 bytes"));
+    if version != FORMAT_VERSION {
+        return Err(format!(
+            "format version {version}, expected {FORMAT_VERSION}"
+        ));
+    }
+    let len = u64::from_le_bytes(bytes[12..20].try_into().expect("8 bytes"));
+    let payload = &bytes[HEADER_LEN..];
+    if payload.len() as u64 != len {
+        return Err(format!(
+            "truncated: payload of {} bytes, header says {len}",
+            payload.len()
+        ));
+    }
+    if blake3::hash(payload).as_bytes() != &bytes[20..52] {
+        return Err("checksum mismatch".into());
+    }
+    let mut r = Reader::new(payload);
+    let err = |e: crate::value::CodecError| e.to_string();
+    let mut entry = CacheEntry::default();
+    for _ in 0..r.usize().map_err(err)? {
+        let name = r.str().map_err(err)?;
+        entry.metrics.insert(name, r.f64().map_err(err)?);
+    }
+    for _ in 0..r.usize().map_err(err)? {
+        let port = r.str().map_err(err)?;
+        entry.outputs.0.insert(port, r.value().map_err(err)?);
+    }
+    Ok(entry)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::value::Table;
+
+    fn sample() -> CacheEntry {
+        let mut e = CacheEntry::default();
+        e.metrics.insert("rmse_mm".into(), 0.25);
+        e.outputs.0.insert("value".into(), Value::from(3.5));
+        e.outputs.0.insert(
+            "table".into(),
+            Table::new(vec!["a".into()], vec![1.0, 2.0]).unwrap().into(),
+        );
+        e
+    }
+
+    #[test]
+    fn round_trip_and_miss() {
+        let dir = tempfile::tempdir().unwrap();
+        let cache = DiskCache::open(dir.path()).unwrap();
+        let key = NodeKey([7; 32]);
+        assert!(matches!(cache.load(&key), Lookup::Miss));
+        cache.store(&key, &sample()).unwrap();
+        match cache.load(&key) {
+            Lookup::Hit(e) => assert_eq!(e, sample()),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn every_truncation_and_bit_flip_is_detected() {
+        let bytes = encode_entry(&sample());
+        for cut in 0..bytes.len() {
+            assert!(decode_entry(&bytes[..cut]).is_err(), "cut at {cut}");
+        }
+        for i in 0..bytes.len() {
+            let mut b = bytes.clone();
+            b[i] ^= 0x10;
+            assert!(decode_entry(&b).is_err(), "flip at {i}");
+        }
+    }
+}

@@ -1,0 +1,456 @@
+//! The graph file as written: parsing TOML into a [`GraphDoc`] and applying
+//! `--set` overrides. Nothing here knows about registered ops; [`crate::validate`]
+//! checks the document against them.
+//!
+//! ```toml
+//! [graph]
+//! name = "mri-markers"
+//!
+//! [node.mask]
+//! op = "mri.otsu"
+//! in.volume = "enhance.volume"   # input port <- "node.output_port"
+//! bins = 256                     # every other key is a parameter
+//! ```
+
+use crate::error::{ErrorKind, GraphError, GraphErrors, closest};
+use std::path::{Path, PathBuf};
+
+/// A connection as written: input `port` takes output `source_port` of node
+/// `source_node`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InputDecl {
+    /// Input port of this node.
+    pub port: String,
+    /// Id of the upstream node.
+    pub source_node: String,
+    /// Output port of the upstream node.
+    pub source_port: String,
+}
+
+/// One `[node.ID]` table as written.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NodeDecl {
+    /// Node id (the table name).
+    pub id: String,
+    /// Op name.
+    pub op: String,
+    /// Input connections, in file order.
+    pub inputs: Vec<InputDecl>,
+    /// Parameters as TOML values, in file order.
+    pub params: Vec<(String, toml::Value)>,
+}
+
+/// A graph file as written, before validation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GraphDoc {
+    /// The graph file.
+    pub file: PathBuf,
+    /// `[graph] name`, or the file stem.
+    pub name: String,
+    /// The folder relative paths are resolved against (the graph file's).
+    pub base_dir: PathBuf,
+    /// Nodes in file order.
+    pub nodes: Vec<NodeDecl>,
+}
+
+const GRAPH_KEYS: &[&str] = &["name", "description"];
+
+impl GraphDoc {
+    /// Reads and parses a graph file.
+    pub fn load(file: &Path) -> Result<GraphDoc, GraphErrors> {
+        let text = std::fs::read_to_string(file).map_err(|e| {
+            GraphError::file(
+                ErrorKind::Unreadable,
+                file,
+                format!("cannot read the graph file: {e}"),
+            )
+        })?;
+        Self::parse(&text, file)
+    }
+
+    /// Parses graph text; `file` names it in errors and anchors relative paths.
+    pub fn parse(text: &str, file: &Path) -> Result<GraphDoc, GraphErrors> {
+        check_duplicate_ids(text, file)?;
+        let table: toml::Table = toml::from_str(text).map_err(|e| syntax_error(text, file, &e))?;
+        let err = |msg: String| GraphError::file(ErrorKind::Structure, file, msg);
+        let mut errors = Vec::new();
+        let mut name = file
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "graph".into());
+        let mut nodes = Vec::new();
+        for (key, value) in &table {
+            match (key.as_str(), value) {
+                ("graph", toml::Value::Table(g)) => {
+                    for (k, v) in g {
+                        match (k.as_str(), v.as_str()) {
+                            ("name", Some(n)) if !n.trim().is_empty() => name = n.to_string(),
+                            ("description", Some(_)) => {}
+                            (k, _) if GRAPH_KEYS.contains(&k) => errors.push(
+                                err(format!("[graph] {k} must be a non-empty string")).at_key(k),
+                            ),
+                            (k, _) => errors.push(
+                                err(format!(
+                                    "unknown key in [graph]; valid keys: {}",
+                                    GRAPH_KEYS.join(", ")
+                                ))
+                                .at_key(k),
+                            ),
+                        }
+                    }
+                }
+                ("node", toml::Value::Table(n)) => {
+                    for (id, body) in n {
+                        match parse_node(id, body, file) {
+                            Ok(node) => nodes.push(node),
+                            Err(mut e) => errors.append(&mut e),
+                        }
+                    }
+                }
+                ("graph" | "node", _) => errors.push(
+                    err(format!("`{key}` must be a table ([{key}] or [{key}.ID])")).at_key(key),
+                ),
+                _ => errors.push(
+                    err("unknown top-level key; a graph has [graph] and [node.ID] tables".into())
+                        .at_key(key),
+                ),
+            }
+        }
+        if nodes.is_empty() && errors.is_empty() {
+            errors.push(err("the graph has no nodes (add [node.ID] tables)".into()));
+        }
+        if !errors.is_empty() {
+            return Err(GraphErrors(errors));
+        }
+        let base_dir = file
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."))
+            .to_path_buf();
+        let base_dir = std::path::absolute(&base_dir).unwrap_or(base_dir);
+        Ok(GraphDoc {
+            file: file.to_path_buf(),
+            name,
+            base_dir,
+            nodes,
+        })
+    }
+
+    /// Applies one `--set ID.KEY=VALUE` override: `ID.op=NAME` swaps the op,
+    /// `ID.in.PORT=node.port` rewires an input, any other key sets a parameter.
+    /// VALUE is read as TOML (`2`, `true`, `[1, 2]`, `"s"`); anything that is not
+    /// valid TOML is taken as a plain string.
+    pub fn apply_set(&mut self, assignment: &str) -> Result<(), GraphError> {
+        let bad = |msg: String| GraphError::file(ErrorKind::BadOverride, &self.file, msg);
+        let (lhs, raw) = assignment
+            .split_once('=')
+            .ok_or_else(|| bad(format!("--set {assignment:?}: expected ID.KEY=VALUE")))?;
+        let (id, key) = lhs
+            .trim()
+            .split_once('.')
+            .ok_or_else(|| bad(format!("--set {assignment:?}: expected ID.KEY=VALUE")))?;
+        let value = parse_cli_value(raw.trim());
+        let ids: Vec<&str> = self.nodes.iter().map(|n| n.id.as_str()).collect();
+        let hint = closest(id, ids.iter().copied()).map(|c| format!(" (did you mean `{c}`?)"));
+        let file = self.file.clone();
+        let node = self.nodes.iter_mut().find(|n| n.id == id).ok_or_else(|| {
+            GraphError::file(
+                ErrorKind::BadOverride,
+                &file,
+                format!("--set: no node with this id{}", hint.unwrap_or_default()),
+            )
+            .at_node(id)
+            .at_key(key)
+        })?;
+        let node_err = |msg: &str| {
+            GraphError::file(ErrorKind::BadOverride, &file, format!("--set: {msg}"))
+                .at_node(id)
+                .at_key(key)
+        };
+        if key == "op" {
+            node.op = value
+                .as_str()
+                .ok_or_else(|| node_err("op must be a name"))?
+                .to_string();
+        } else if let Some(port) = key.strip_prefix("in.") {
+            let src = value
+                .as_str()
+                .ok_or_else(|| node_err("an input must be \"node.port\""))?;
+            let input = parse_input(port, src).map_err(|m| node_err(&m))?;
+            node.inputs.retain(|i| i.port != port);
+            node.inputs.push(input);
+        } else {
+            match node.params.iter_mut().find(|(k, _)| k == key) {
+                Some((_, v)) => *v = value,
+                None => node.params.push((key.to_string(), value)),
+            }
+        }
+        Ok(())
+    }
+}
+
+fn parse_cli_value(raw: &str) -> toml::Value {
+    toml::from_str::<toml::Table>(&format!("v = {raw}"))
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(raw.to_string()))
+}
+
+fn parse_node(id: &str, body: &toml::Value, file: &Path) -> Result<NodeDecl, Vec<GraphError>> {
+    let err = |msg: String| GraphError::file(ErrorKind::Structure, file, msg).at_node(id);
+    let Some(body) = body.as_table() else {
+        return Err(vec![err(
+            "must be a table: [node.ID] with op = \"...\"".into()
+        )]);
+    };
+    let mut errors = Vec::new();
+    if id.is_empty()
+        || !id
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+    {
+        errors.push(err(
+            "node ids may hold only letters, digits, '_' and '-'".into()
+        ));
+    }
+    let op = match body.get("op") {
+        Some(toml::Value::String(op)) => op.clone(),
+        Some(_) => {
+            errors.push(err("`op` must be a string naming the node type".into()).at_key("op"));
+            String::new()
+        }
+        None => {
+            errors.push(
+                err("missing `op` (the node type, e.g. op = \"mri.otsu\")".into()).at_key("op"),
+            );
+            String::new()
+        }
+    };
+    let mut inputs = Vec::new();
+    let mut params = Vec::new();
+    for (key, value) in body {
+        match key.as_str() {
+            "op" => {}
+            "in" => match value.as_table() {
+                Some(ins) => {
+                    for (port, src) in ins {
+                        let key = format!("in.{port}");
+                        match src
+                            .as_str()
+                            .ok_or("must be a string \"node.port\"".to_string())
+                        {
+                            Ok(s) => match parse_input(port, s) {
+                                Ok(i) => inputs.push(i),
+                                Err(m) => errors.push(err(m).at_key(&key)),
+                            },
+                            Err(m) => errors.push(err(m).at_key(&key)),
+                        }
+                    }
+                }
+                None => errors
+                    .push(err("`in` must be a table of port = \"node.port\"".into()).at_key("in")),
+            },
+            _ => params.push((key.clone(), value.clone())),
+        }
+    }
+    if errors.is_empty() {
+        Ok(NodeDecl {
+            id: id.to_string(),
+            op,
+            inputs,
+            params,
+        })
+    } else {
+        Err(errors)
+    }
+}
+
+fn parse_input(port: &str, source: &str) -> Result<InputDecl, String> {
+    match source.split_once('.') {
+        Some((n, p)) if !n.is_empty() && !p.is_empty() => Ok(InputDecl {
+            port: port.to_string(),
+            source_node: n.to_string(),
+            source_port: p.to_string(),
+        }),
+        _ => Err(format!("{source:?} must name an output as \"node.port\"")),
+    }
+}
+
+fn line_col(text: &str, offset: usize) -> (usize, usize) {
+    let before = &text[..offset.min(text.len())];
+    let line = before.matches('\n').count() + 1;
+    let col = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
+    (line, col)
+}
+
+fn syntax_error(text: &str, file: &Path, e: &toml::de::Error) -> GraphErrors {
+    let at = e
+        .span()
+        .map(|s| {
+            let (l, c) = line_col(text, s.start);
+            format!("line {l}, column {c}: ")
+        })
+        .unwrap_or_default();
+    GraphError::file(
+        ErrorKind::Syntax,
+        file,
+        format!("TOML syntax error at {at}{}", e.message().trim()),
+    )
+    .into()
+}
+
+/// TOML itself rejects a repeated `[node.ID]` table, with a generic message; find
+/// repeats first so the error names the id and both lines.
+fn check_duplicate_ids(text: &str, file: &Path) -> Result<(), GraphErrors> {
+    let mut seen: Vec<(String, usize)> = Vec::new();
+    let mut errors = Vec::new();
+    for (n, line) in text.lines().enumerate() {
+        let t = line.trim();
+        let Some(inner) = t.strip_prefix('[').and_then(|r| r.split(']').next()) else {
+            continue;
+        };
+        if t.starts_with("[[") {
+            continue;
+        }
+        let parts: Vec<String> = inner
+            .split('.')
+            .map(|p| p.trim().trim_matches('"').to_string())
+            .collect();
+        if parts.len() != 2 || parts[0] != "node" {
+            continue;
+        }
+        match seen.iter().find(|(id, _)| *id == parts[1]) {
+            Some((id, first)) => errors.push(
+                GraphError::file(
+                    ErrorKind::DuplicateId,
+                    file,
+                    format!(
+                        "duplicate node id (first defined on line {first}, again on line {})",
+                        n + 1
+                    ),
+                )
+                .at_node(id),
+            ),
+            None => seen.push((parts[1].clone(), n + 1)),
+        }
+    }
+    if errors.is_empty() {
+        Ok(())
+    } else {
+        Err(GraphErrors(errors))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Result<GraphDoc, GraphErrors> {
+        GraphDoc::parse(text, Path::new("dir/g.toml"))
+    }
+
+    const TWO: &str = r#"
+[graph]
+name = "demo"
+
+[node.a]
+op = "math.constant"
+value = 2.0
+
+[node.b]
+op = "math.binary"
+in.a = "a.value"
+in.b = "a.value"
+operation = "mul"
+"#;
+
+    #[test]
+    fn parses_nodes_inputs_and_params_in_file_order() {
+        let g = parse(TWO).unwrap();
+        assert_eq!(g.name, "demo");
+        assert_eq!(
+            g.nodes.iter().map(|n| n.id.as_str()).collect::<Vec<_>>(),
+            ["a", "b"]
+        );
+        let b = &g.nodes[1];
+        assert_eq!(b.inputs[0].port, "a");
+        assert_eq!(
+            (
+                b.inputs[1].source_node.as_str(),
+                b.inputs[1].source_port.as_str()
+            ),
+            ("a", "value")
+        );
+        assert_eq!(
+            b.params,
+            vec![("operation".to_string(), toml::Value::String("mul".into()))]
+        );
+        assert!(g.base_dir.ends_with("dir") && g.base_dir.is_absolute());
+    }
+
+    #[test]
+    fn syntax_errors_give_line_and_column() {
+        let e = parse("[node.a]\nop = \"x\"\nvalue = = 3\n").unwrap_err();
+        assert_eq!(e.0[0].kind, ErrorKind::Syntax);
+        assert!(e.0[0].to_string().contains("line 3, column"), "{e}");
+        assert!(e.0[0].to_string().starts_with("dir/g.toml"), "{e}");
+    }
+
+    #[test]
+    fn duplicate_ids_name_the_id_and_lines() {
+        let e = parse("[node.a]\nop = \"x\"\n\n[node.a]\nop = \"y\"\n").unwrap_err();
+        assert_eq!(e.0[0].kind, ErrorKind::DuplicateId);
+        assert_eq!(e.0[0].node.as_deref(), Some("a"));
+        assert!(e.0[0].message.contains("line 1") && e.0[0].message.contains("line 4"));
+    }
+
+    #[test]
+    fn structural_errors_name_node_and_key() {
+        let e = parse("[node.a]\nvalue = 1\n[node.b]\nop = \"x\"\nin.v = \"nodot\"\n").unwrap_err();
+        let keys: Vec<_> =
+            e.0.iter()
+                .map(|e| (e.node.clone().unwrap(), e.key.clone().unwrap()))
+                .collect();
+        assert_eq!(
+            keys,
+            [("a".into(), "op".into()), ("b".into(), "in.v".into())]
+        );
+        let e = parse("[graph]\nname = \"x\"\ncolour = 1\n[node.a]\nop = \"x\"\n").unwrap_err();
+        assert_eq!(e.0[0].key.as_deref(), Some("colour"));
+        assert!(parse("[graph]\nname = \"x\"\n").is_err());
+        assert!(
+            parse("title = 1\n[node.a]\nop = \"x\"\n").unwrap_err().0[0]
+                .message
+                .contains("top-level")
+        );
+    }
+
+    #[test]
+    fn set_overrides_params_ops_and_inputs() {
+        let mut g = parse(TWO).unwrap();
+        g.apply_set("a.value=3").unwrap();
+        g.apply_set("b.op=math.other").unwrap();
+        g.apply_set("b.in.b=a.other").unwrap();
+        g.apply_set("b.label=some text").unwrap();
+        assert_eq!(g.nodes[0].params[0].1, toml::Value::Integer(3));
+        assert_eq!(g.nodes[1].op, "math.other");
+        assert_eq!(
+            g.nodes[1]
+                .inputs
+                .iter()
+                .find(|i| i.port == "b")
+                .unwrap()
+                .source_port,
+            "other"
+        );
+        assert_eq!(
+            g.nodes[1].params[1].1,
+            toml::Value::String("some text".into())
+        );
+        let e = g.apply_set("aa.value=1").unwrap_err();
+        assert_eq!(e.kind, ErrorKind::BadOverride);
+        assert!(e.message.contains("did you mean `a`"), "{e}");
+        assert!(g.apply_set("a.value").is_err());
+        assert!(g.apply_set("novalue=1").is_err());
+    }
+}

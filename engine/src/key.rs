@@ -1,0 +1,142 @@
+//! Cache keys: blake3 over what decides a node's outputs and only that: the op
+//! name and version, the parameters in canonical sorted form (path parameters by
+//! content, not by name), and the keys of the inputs. Sinks also hash the output
+//! folder they write to.
+
+use crate::error::{ErrorKind, GraphError, GraphErrors};
+use crate::hash::hash_path;
+use crate::param::ParamValue;
+use crate::validate::ValidGraph;
+use std::fmt;
+use std::path::Path;
+
+/// The key of a node's outputs.
+#[derive(Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct NodeKey(pub [u8; 32]);
+
+impl NodeKey {
+    /// Lower-case hex.
+    pub fn hex(&self) -> String {
+        blake3::Hash::from_bytes(self.0).to_hex().to_string()
+    }
+}
+
+impl fmt::Debug for NodeKey {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "NodeKey({})", &self.hex()[..16])
+    }
+}
+
+impl fmt::Display for NodeKey {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.hex())
+    }
+}
+
+/// The key of every node (indexed like `graph.nodes`). Reads every path
+/// parameter's content; a file that cannot be read is an error naming its node
+/// and key.
+pub fn node_keys(graph: &ValidGraph, out_dir: &Path) -> Result<Vec<NodeKey>, GraphErrors> {
+    let mut keys: Vec<Option<NodeKey>> = vec![None; graph.nodes.len()];
+    let mut errors = Vec::new();
+    for &i in &graph.order {
+        let node = &graph.nodes[i];
+        let spec = node.op.spec();
+        let mut h = blake3::Hasher::new();
+        h.update(b"fusegraph node key v1\0");
+        put_str(&mut h, &spec.name);
+        h.update(&spec.version.to_le_bytes());
+        for (name, value) in &node.params.0 {
+            put_str(&mut h, name);
+            if let Err(e) = put_param(&mut h, value) {
+                errors.push(
+                    GraphError::file(
+                        ErrorKind::MissingFile,
+                        &graph.file,
+                        format!("cannot read: {e}"),
+                    )
+                    .at_node(&node.id)
+                    .at_key(name),
+                );
+            }
+        }
+        let mut inputs: Vec<_> = node.inputs.iter().collect();
+        inputs.sort_by(|a, b| a.port.cmp(&b.port));
+        for e in inputs {
+            put_str(&mut h, &e.port);
+            put_str(&mut h, &e.from_port);
+            // Upstream keys exist: `order` is topological.
+            h.update(&keys[e.from].map(|k| k.0).unwrap_or_default());
+        }
+        if spec.writes_output {
+            put_str(
+                &mut h,
+                &std::path::absolute(out_dir)
+                    .unwrap_or(out_dir.into())
+                    .to_string_lossy(),
+            );
+        }
+        keys[i] = Some(NodeKey(*h.finalize().as_bytes()));
+    }
+    if !errors.is_empty() {
+        return Err(GraphErrors(errors));
+    }
+    Ok(keys
+        .into_iter()
+        .map(|k| k.expect("every node keyed"))
+        .collect())
+}
+
+fn put_str(h: &mut blake3::Hasher, s: &str) {
+    h.update(&(s.len() as u64).to_le_bytes());
+    h.update(s.as_bytes());
+}
+
+fn put_param(h: &mut blake3::Hasher, value: &ParamValue) -> std::io::Result<()> {
+    match value {
+        ParamValue::Float(v) => {
+            h.update(b"f");
+            h.update(&canonical(*v).to_le_bytes());
+        }
+        ParamValue::Int(v) => {
+            h.update(b"i");
+            h.update(&v.to_le_bytes());
+        }
+        ParamValue::Bool(v) => {
+            h.update(if *v { b"T" } else { b"F" });
+        }
+        ParamValue::String(s) => {
+            h.update(b"s");
+            put_str(h, s);
+        }
+        ParamValue::Path(p) => {
+            h.update(b"p");
+            h.update(hash_path(p)?.as_bytes());
+        }
+        ParamValue::FloatList(v) => {
+            h.update(b"F");
+            h.update(&(v.len() as u64).to_le_bytes());
+            v.iter().for_each(|x| {
+                h.update(&canonical(*x).to_le_bytes());
+            });
+        }
+        ParamValue::IntList(v) => {
+            h.update(b"I");
+            h.update(&(v.len() as u64).to_le_bytes());
+            v.iter().for_each(|x| {
+                h.update(&x.to_le_bytes());
+            });
+        }
+        ParamValue::StringList(v) => {
+            h.update(b"S");
+            h.update(&(v.len() as u64).to_le_bytes());
+            v.iter().for_each(|s| put_str(h, s));
+        }
+    }
+    Ok(())
+}
+
+/// -0.0 and 0.0 are the same parameter.
+fn canonical(x: f64) -> u64 {
+    if x == 0.0 { 0 } else { x.to_bits() }
+}

@@ -1,0 +1,29 @@
+//! fusegraph's dataflow engine: graph files ([`graph`]), their validation
+//! ([`validate`]), the value types ([`value`]), node types and their registry
+//! ([`op`], [`registry`]), cache keys and the two cache levels ([`key`],
+//! [`cache`]), and the scheduler ([`schedule`]) that writes a [`report`].
+//!
+//! The engine knows nothing about MRI or cameras: node types come from the
+//! `fusegraph-nodes` crate or from plugins.
+
+pub mod cache;
+pub mod dot;
+pub mod error;
+pub mod graph;
+pub mod hash;
+pub mod key;
+pub mod op;
+pub mod param;
+pub mod registry;
+pub mod report;
+pub mod schedule;
+pub mod session;
+pub mod validate;
+pub mod value;
+
+pub use error::{ErrorKind, GraphError, GraphErrors};
+pub use op::{Inputs, Op, OpError, OpSpec, Outputs, PortSpec, RunCtx};
+pub use param::{ParamKind, ParamSpec, ParamValue, Params};
+pub use registry::Registry;
+pub use report::{NodeStatus, RunReport};
+pub use value::{Value, ValueType};

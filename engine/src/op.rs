@@ -1,0 +1,355 @@
+//! What a node type is: its declaration ([`OpSpec`]) and its behaviour ([`Op`]),
+//! with the inputs, outputs and context it runs with.
+
+use crate::param::{ParamError, ParamSpec, Params};
+use crate::value::{FromValue, Value, ValueType};
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// One input or output port.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PortSpec {
+    /// Port name, as written after the dot in `node.port`.
+    pub name: String,
+    /// Types accepted (inputs) or the one type produced (outputs).
+    pub types: Vec<ValueType>,
+    /// Whether an input may be left unconnected.
+    pub optional: bool,
+    /// One-line description, with units and frame.
+    pub doc: String,
+}
+
+impl PortSpec {
+    /// Whether a value of type `t` fits this port.
+    pub fn accepts(&self, t: ValueType) -> bool {
+        self.types.contains(&t)
+    }
+
+    /// The accepted types as text: `Volume` or `Volume | Mask`.
+    pub fn type_names(&self) -> String {
+        self.types
+            .iter()
+            .map(|t| t.name())
+            .collect::<Vec<_>>()
+            .join(" | ")
+    }
+}
+
+/// The declaration of a node type: everything validation, `fusegraph nodes` and
+/// the cache key need, without running it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct OpSpec {
+    /// Op name, `stage.action` (e.g. `mri.otsu`).
+    pub name: String,
+    /// Bumped whenever the op's outputs change for the same inputs; part of the
+    /// cache key, so old cached results are not reused.
+    pub version: u32,
+    /// One-line description.
+    pub doc: String,
+    /// Input ports.
+    pub inputs: Vec<PortSpec>,
+    /// Output ports.
+    pub outputs: Vec<PortSpec>,
+    /// Parameters.
+    pub params: Vec<ParamSpec>,
+    /// Whether the op writes files under the run's output folder (an `io.*`
+    /// sink). Its cache key then includes that folder, and its cached result is
+    /// reused only while the files it wrote still hold the same content.
+    pub writes_output: bool,
+}
+
+impl OpSpec {
+    /// A spec with no ports or parameters yet.
+    pub fn new(name: &str, version: u32, doc: &str) -> Self {
+        OpSpec {
+            name: name.into(),
+            version,
+            doc: doc.into(),
+            inputs: Vec::new(),
+            outputs: Vec::new(),
+            params: Vec::new(),
+            writes_output: false,
+        }
+    }
+
+    /// Adds a required input accepting any of `types`.
+    pub fn input(mut self, name: &str, types: &[ValueType], doc: &str) -> Self {
+        self.inputs.push(PortSpec {
+            name: name.into(),
+            types: types.to_vec(),
+            optional: false,
+            doc: doc.into(),
+        });
+        self
+    }
+
+    /// Adds an input that may be left unconnected.
+    pub fn optional_input(mut self, name: &str, types: &[ValueType], doc: &str) -> Self {
+        self = self.input(name, types, doc);
+        self.inputs.last_mut().expect("just pushed").optional = true;
+        self
+    }
+
+    /// Adds an output.
+    pub fn output(mut self, name: &str, ty: ValueType, doc: &str) -> Self {
+        self.outputs.push(PortSpec {
+            name: name.into(),
+            types: vec![ty],
+            optional: false,
+            doc: doc.into(),
+        });
+        self
+    }
+
+    /// Adds a parameter.
+    pub fn param(mut self, p: ParamSpec) -> Self {
+        self.params.push(p);
+        self
+    }
+
+    /// Marks the op as writing files under the run's output folder.
+    pub fn writes_output(mut self) -> Self {
+        self.writes_output = true;
+        self
+    }
+
+    /// Checks the declaration: a `stage.action` name, unique non-empty port and
+    /// parameter names (`op` and `in` are reserved), one type per output, and
+    /// defaults that satisfy their own parameter's kind and range.
+    pub fn check(&self) -> Result<(), String> {
+        let valid_name =
+            |s: &str| !s.is_empty() && s.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
+        match self.name.split_once('.') {
+            Some((stage, action)) if valid_name(stage) && valid_name(action) => {}
+            _ => return Err("op names are `stage.action` (letters, digits, '_')".into()),
+        }
+        for (what, names) in [
+            (
+                "input",
+                self.inputs
+                    .iter()
+                    .map(|p| p.name.as_str())
+                    .collect::<Vec<_>>(),
+            ),
+            (
+                "output",
+                self.outputs.iter().map(|p| p.name.as_str()).collect(),
+            ),
+            (
+                "parameter",
+                self.params.iter().map(|p| p.name.as_str()).collect(),
+            ),
+        ] {
+            for (i, n) in names.iter().enumerate() {
+                if !valid_name(n) || names[..i].contains(n) {
+                    return Err(format!("{what} name `{n}` is empty, malformed or repeated"));
+                }
+            }
+        }
+        if let Some(p) = self
+            .params
+            .iter()
+            .find(|p| p.name == "op" || p.name == "in")
+        {
+            return Err(format!("parameter name `{}` is reserved", p.name));
+        }
+        if let Some(p) = self.inputs.iter().find(|p| p.types.is_empty()) {
+            return Err(format!("input `{}` accepts no type", p.name));
+        }
+        if let Some(p) = self.outputs.iter().find(|p| p.types.len() != 1) {
+            return Err(format!("output `{}` must have exactly one type", p.name));
+        }
+        for p in &self.params {
+            if let Some(d) = &p.default {
+                let as_toml = toml::Value::try_from(d).map_err(|e| e.to_string())?;
+                if d.kind() != p.kind {
+                    return Err(format!(
+                        "parameter `{}`: default is a {}, declared {}",
+                        p.name,
+                        d.kind(),
+                        p.kind
+                    ));
+                }
+                if p.kind != crate::param::ParamKind::Path {
+                    p.parse(&as_toml, Path::new(""))
+                        .map_err(|e| format!("parameter `{}`: default {e}", p.name))?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The input port called `name`.
+    pub fn input_port(&self, name: &str) -> Option<&PortSpec> {
+        self.inputs.iter().find(|p| p.name == name)
+    }
+
+    /// The output port called `name`.
+    pub fn output_port(&self, name: &str) -> Option<&PortSpec> {
+        self.outputs.iter().find(|p| p.name == name)
+    }
+
+    /// The parameter called `name`.
+    pub fn param_spec(&self, name: &str) -> Option<&ParamSpec> {
+        self.params.iter().find(|p| p.name == name)
+    }
+}
+
+/// Why an op failed. The message is shown to the user with the node id.
+#[derive(Debug, thiserror::Error)]
+pub enum OpError {
+    /// Bad or unexpected input data (a corrupt file, too few points, ...).
+    #[error("{0}")]
+    Invalid(String),
+    /// A file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file or folder.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// A declared parameter could not be read (a bug in the op).
+    #[error(transparent)]
+    Param(#[from] ParamError),
+    /// A declared input is missing or has another type (a bug in the op).
+    #[error("input `{0}`: {1}")]
+    Input(String, String),
+}
+
+impl OpError {
+    /// An [`OpError::Invalid`] from any message.
+    pub fn invalid(msg: impl Into<String>) -> Self {
+        OpError::Invalid(msg.into())
+    }
+
+    /// An [`OpError::Io`] naming `path`.
+    pub fn io(path: impl AsRef<Path>, source: std::io::Error) -> Self {
+        OpError::Io {
+            path: path.as_ref().to_path_buf(),
+            source,
+        }
+    }
+}
+
+/// The values on a node's connected input ports.
+#[derive(Debug, Clone, Default)]
+pub struct Inputs(pub BTreeMap<String, Value>);
+
+impl Inputs {
+    /// The raw value on `port`, if connected.
+    pub fn value(&self, port: &str) -> Option<&Value> {
+        self.0.get(port)
+    }
+
+    /// The value on a required `port`, as type `T`.
+    pub fn get<T: FromValue>(&self, port: &str) -> Result<Arc<T>, OpError> {
+        self.optional(port)?
+            .ok_or_else(|| OpError::Input(port.into(), "not connected".into()))
+    }
+
+    /// The value on an optional `port`, as type `T`, or `None` when unconnected.
+    pub fn optional<T: FromValue>(&self, port: &str) -> Result<Option<Arc<T>>, OpError> {
+        match self.0.get(port) {
+            None => Ok(None),
+            Some(v) => T::from_value(v).cloned().map(Some).ok_or_else(|| {
+                OpError::Input(
+                    port.into(),
+                    format!("is a {}, expected {}", v.value_type(), T::TYPE),
+                )
+            }),
+        }
+    }
+}
+
+/// The values an op produced, by output port name.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Outputs(pub BTreeMap<String, Value>);
+
+impl Outputs {
+    /// No outputs yet.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Adds the value of output `port`.
+    pub fn with(mut self, port: &str, value: impl Into<Value>) -> Self {
+        self.0.insert(port.into(), value.into());
+        self
+    }
+}
+
+/// What an op may use while it runs besides its inputs and parameters.
+#[derive(Debug)]
+pub struct RunCtx {
+    node_id: String,
+    out_dir: PathBuf,
+    metrics: BTreeMap<String, f64>,
+}
+
+impl RunCtx {
+    /// A context for node `node_id` whose sinks write under `out_dir`.
+    pub fn new(node_id: &str, out_dir: &Path) -> Self {
+        RunCtx {
+            node_id: node_id.into(),
+            out_dir: out_dir.to_path_buf(),
+            metrics: BTreeMap::new(),
+        }
+    }
+
+    /// The id of the node being run.
+    pub fn node_id(&self) -> &str {
+        &self.node_id
+    }
+
+    /// Records a named metric (put the unit in the name: `rmse_mm`).
+    pub fn metric(&mut self, name: &str, value: f64) {
+        self.metrics.insert(name.into(), value);
+    }
+
+    /// The metrics recorded so far.
+    pub fn metrics(&self) -> &BTreeMap<String, f64> {
+        &self.metrics
+    }
+
+    /// Takes the recorded metrics.
+    pub fn into_metrics(self) -> BTreeMap<String, f64> {
+        self.metrics
+    }
+
+    /// Where a sink writes `relative` under the run's output folder; creates the
+    /// parent folders. Refuses absolute paths and `..`, so a graph cannot write
+    /// outside the output folder.
+    pub fn output_path(&self, relative: &str) -> Result<PathBuf, OpError> {
+        let rel = Path::new(relative);
+        let escapes = rel.is_absolute()
+            || rel
+                .components()
+                .any(|c| matches!(c, std::path::Component::ParentDir));
+        if escapes || relative.is_empty() {
+            return Err(OpError::invalid(format!(
+                "output file {relative:?} must be a relative path inside the output folder"
+            )));
+        }
+        let path = self.out_dir.join(rel);
+        if let Some(parent) = path.parent() {
+            std::fs::create_dir_all(parent).map_err(|e| OpError::io(parent, e))?;
+        }
+        Ok(path)
+    }
+}
+
+/// A node type: its declaration and how it runs.
+///
+/// `run` must be a function of its inputs and parameters only (it is cached by
+/// them), must not write outside [`RunCtx::output_path`], and reports bad data as
+/// an [`OpError`] rather than panicking (a panic is caught and reported, but an
+/// error message is clearer).
+pub trait Op: Send + Sync {
+    /// The declaration.
+    fn spec(&self) -> &OpSpec;
+    /// Computes the outputs.
+    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError>;
+}

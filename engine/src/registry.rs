@@ -1,0 +1,58 @@
+//! The registry of node types, open to registration at run time (plugins add
+//! theirs after the built-in ones).
+
+use crate::op::{Op, OpSpec};
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+/// A node type that cannot be registered.
+#[derive(Debug, thiserror::Error)]
+pub enum RegisterError {
+    /// Another node type already has this op name.
+    #[error("op `{0}` is already registered")]
+    Duplicate(String),
+    /// The declaration is inconsistent.
+    #[error("op `{0}`: {1}")]
+    InvalidSpec(String, String),
+}
+
+/// Node types by op name.
+#[derive(Clone, Default)]
+pub struct Registry {
+    ops: BTreeMap<String, Arc<dyn Op>>,
+}
+
+impl Registry {
+    /// An empty registry.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Adds a node type; its op name must be new and its declaration consistent.
+    pub fn register(&mut self, op: Arc<dyn Op>) -> Result<(), RegisterError> {
+        let name = op.spec().name.clone();
+        op.spec()
+            .check()
+            .map_err(|why| RegisterError::InvalidSpec(name.clone(), why))?;
+        if self.ops.contains_key(&name) {
+            return Err(RegisterError::Duplicate(name));
+        }
+        self.ops.insert(name, op);
+        Ok(())
+    }
+
+    /// The node type called `name`.
+    pub fn get(&self, name: &str) -> Option<&Arc<dyn Op>> {
+        self.ops.get(name)
+    }
+
+    /// Every op name, sorted.
+    pub fn names(&self) -> impl Iterator<Item = &str> {
+        self.ops.keys().map(String::as_str)
+    }
+
+    /// Every declaration, sorted by op name.
+    pub fn specs(&self) -> impl Iterator<Item = &OpSpec> {
+        self.ops.values().map(|op| op.spec())
+    }
+}

@@ -1,0 +1,93 @@
+//! The run report (`report.json`): per node its op, status, wall time, cache key,
+//! metrics and error; and every metric flattened as `"node.metric"`.
+
+use serde::Serialize;
+use std::collections::BTreeMap;
+
+/// What happened to a node in a run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NodeStatus {
+    /// The op ran.
+    Ran,
+    /// The result came from the cache.
+    Cached,
+    /// The op returned an error or panicked.
+    Failed,
+    /// Not run because an upstream node failed.
+    Skipped,
+}
+
+/// One node's line in the report.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct NodeReport {
+    /// Op name.
+    pub op: String,
+    /// What happened.
+    pub status: NodeStatus,
+    /// Wall time in ms (running, or loading from the cache).
+    pub ms: f64,
+    /// Cache key (hex).
+    pub key: String,
+    /// Metrics by name.
+    pub metrics: BTreeMap<String, f64>,
+    /// Why it failed or was skipped.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+}
+
+/// The report of one run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunReport {
+    /// Graph name.
+    pub graph: String,
+    /// Graph file.
+    pub file: String,
+    /// Nodes in file order: (id, report).
+    pub nodes: Vec<(String, NodeReport)>,
+    /// Wall time of the whole run in ms.
+    pub total_ms: f64,
+}
+
+impl RunReport {
+    /// Whether every node ran or was cached.
+    pub fn succeeded(&self) -> bool {
+        self.nodes
+            .iter()
+            .all(|(_, n)| matches!(n.status, NodeStatus::Ran | NodeStatus::Cached))
+    }
+
+    /// The report of node `id`.
+    pub fn node(&self, id: &str) -> Option<&NodeReport> {
+        self.nodes.iter().find(|(n, _)| n == id).map(|(_, r)| r)
+    }
+
+    /// Every metric as `"node.metric"`.
+    pub fn metrics(&self) -> BTreeMap<String, f64> {
+        self.nodes
+            .iter()
+            .flat_map(|(id, n)| {
+                n.metrics
+                    .iter()
+                    .map(move |(m, v)| (format!("{id}.{m}"), *v))
+            })
+            .collect()
+    }
+
+    /// The report as JSON (non-finite metrics become `null`).
+    pub fn to_json(&self) -> serde_json::Value {
+        let nodes: serde_json::Map<String, serde_json::Value> = self
+            .nodes
+            .iter()
+            .map(|(id, n)| (id.clone(), serde_json::to_value(n).expect("plain data")))
+            .collect();
+        serde_json::json!({
+            "graph": self.graph,
+            "file": self.file,
+            "succeeded": self.succeeded(),
+            "total_ms": self.total_ms,
+            "nodes": nodes,
+            "metrics": self.metrics(),
+        })
+    }
+}

@@ -1,0 +1,354 @@
+//! The scheduler: runs a validated graph in dependency order, independent nodes in
+//! parallel on a rayon pool, reusing cached results by key. A node that fails
+//! (error or panic) stops only its downstream nodes, which are marked skipped;
+//! every other branch finishes.
+
+use crate::cache::{CacheEntry, DiskCache, Lookup, MemoryCache};
+use crate::key::NodeKey;
+use crate::op::{Inputs, OpError, RunCtx};
+use crate::report::{NodeReport, NodeStatus, RunReport};
+use crate::validate::ValidGraph;
+use crate::value::{PathValue, Value};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use std::collections::BTreeSet;
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex, OnceLock};
+use std::time::Instant;
+
+/// How to run a graph.
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    /// Folder sinks write into (and `report.json`, written by the caller).
+    pub out_dir: PathBuf,
+    /// The disk cache, or `None` for `--no-cache`.
+    pub cache: Option<DiskCache>,
+    /// Worker threads; 0 = one per core.
+    pub jobs: usize,
+    /// Show a progress bar on stderr.
+    pub progress: bool,
+}
+
+/// What a run produced: the report, and each node's outputs (`None` where it
+/// failed or was skipped), indexed like the graph's nodes.
+pub struct RunOutcome {
+    /// The report.
+    pub report: RunReport,
+    /// Each node's outputs and metrics.
+    pub results: Vec<Option<Arc<CacheEntry>>>,
+}
+
+/// Runs `graph` whose node keys are `keys` (see [`crate::key::node_keys`]).
+/// `memory` may be shared between runs of one process.
+pub fn run_graph(
+    graph: &ValidGraph,
+    keys: &[NodeKey],
+    options: &RunOptions,
+    memory: &MemoryCache,
+) -> Result<RunOutcome, std::io::Error> {
+    std::fs::create_dir_all(&options.out_dir)?;
+    let start = Instant::now();
+    let n = graph.nodes.len();
+    let mut successors: Vec<BTreeSet<usize>> = vec![BTreeSet::new(); n];
+    for (i, node) in graph.nodes.iter().enumerate() {
+        for e in &node.inputs {
+            successors[e.from].insert(i);
+        }
+    }
+    let pending: Vec<AtomicUsize> = graph
+        .nodes
+        .iter()
+        .map(|node| {
+            AtomicUsize::new(
+                node.inputs
+                    .iter()
+                    .map(|e| e.from)
+                    .collect::<BTreeSet<_>>()
+                    .len(),
+            )
+        })
+        .collect();
+    let progress = if options.progress {
+        let bar = ProgressBar::with_draw_target(Some(n as u64), ProgressDrawTarget::stderr());
+        bar.set_style(
+            ProgressStyle::with_template(
+                "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} {wide_msg}",
+            )
+            .expect("valid template"),
+        );
+        bar.enable_steady_tick(std::time::Duration::from_millis(120));
+        bar
+    } else {
+        ProgressBar::hidden()
+    };
+    let exec = Executor {
+        graph,
+        keys,
+        options,
+        memory,
+        successors,
+        pending,
+        slots: (0..n).map(|_| OnceLock::new()).collect(),
+        running: Mutex::new(BTreeSet::new()),
+        progress,
+    };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(options.jobs)
+        .thread_name(|i| format!("fusegraph-{i}"))
+        .build()
+        .map_err(std::io::Error::other)?;
+    pool.install(|| {
+        rayon::scope(|s| {
+            for i in 0..n {
+                if exec.pending[i].load(Ordering::Acquire) == 0 {
+                    let exec = &exec;
+                    s.spawn(move |s| exec.execute(i, s));
+                }
+            }
+        })
+    });
+    exec.progress.finish_and_clear();
+    let slots: Vec<Slot> = exec
+        .slots
+        .into_iter()
+        .map(|s| s.into_inner().expect("every node was executed"))
+        .collect();
+    let report = RunReport {
+        graph: graph.name.clone(),
+        file: graph.file.display().to_string(),
+        nodes: graph
+            .nodes
+            .iter()
+            .zip(&slots)
+            .map(|(node, slot)| (node.id.clone(), slot.report.clone()))
+            .collect(),
+        total_ms: start.elapsed().as_secs_f64() * 1e3,
+    };
+    Ok(RunOutcome {
+        report,
+        results: slots.into_iter().map(|s| s.entry).collect(),
+    })
+}
+
+struct Slot {
+    report: NodeReport,
+    entry: Option<Arc<CacheEntry>>,
+}
+
+struct Executor<'a> {
+    graph: &'a ValidGraph,
+    keys: &'a [NodeKey],
+    options: &'a RunOptions,
+    memory: &'a MemoryCache,
+    successors: Vec<BTreeSet<usize>>,
+    pending: Vec<AtomicUsize>,
+    slots: Vec<OnceLock<Slot>>,
+    running: Mutex<BTreeSet<String>>,
+    progress: ProgressBar,
+}
+
+impl<'a> Executor<'a> {
+    fn execute<'s>(&'s self, i: usize, scope: &rayon::Scope<'s>) {
+        let slot = self.compute(i);
+        let _ = self.slots[i].set(slot);
+        self.progress.inc(1);
+        for &next in &self.successors[i] {
+            if self.pending[next].fetch_sub(1, Ordering::AcqRel) == 1 {
+                scope.spawn(move |s| self.execute(next, s));
+            }
+        }
+    }
+
+    fn set_running(&self, id: &str, running: bool) {
+        let mut set = self.running.lock().unwrap_or_else(|p| p.into_inner());
+        if running {
+            set.insert(id.to_string());
+        } else {
+            set.remove(id);
+        }
+        self.progress
+            .set_message(set.iter().cloned().collect::<Vec<_>>().join(", "));
+    }
+
+    fn compute(&self, i: usize) -> Slot {
+        let node = &self.graph.nodes[i];
+        let key = self.keys[i];
+        let start = Instant::now();
+        let report = |status, metrics, error| NodeReport {
+            op: node.op.spec().name.clone(),
+            status,
+            ms: (start.elapsed().as_secs_f64() * 1e6).round() / 1e3,
+            key: key.hex(),
+            metrics,
+            error,
+        };
+
+        let mut inputs = Inputs::default();
+        for e in &node.inputs {
+            let upstream = self.slots[e.from].get().expect("upstream finished first");
+            let Some(entry) = &upstream.entry else {
+                let why = format!(
+                    "upstream node `{}` did not produce results",
+                    self.graph.nodes[e.from].id
+                );
+                return Slot {
+                    report: report(NodeStatus::Skipped, Default::default(), Some(why)),
+                    entry: None,
+                };
+            };
+            let value = entry
+                .outputs
+                .0
+                .get(&e.from_port)
+                .expect("validated output exists");
+            inputs.0.insert(e.port.clone(), value.clone());
+        }
+
+        if let Some(entry) = self.lookup(&node.id, &key) {
+            tracing::info!(node = %node.id, "cached");
+            return Slot {
+                report: report(NodeStatus::Cached, entry.metrics.clone(), None),
+                entry: Some(entry),
+            };
+        }
+
+        self.set_running(&node.id, true);
+        let mut ctx = RunCtx::new(&node.id, &self.options.out_dir);
+        let outcome = catch_unwind(AssertUnwindSafe(|| {
+            node.op.run(&inputs, &node.params, &mut ctx)
+        }));
+        self.set_running(&node.id, false);
+        let outputs = match outcome {
+            Ok(Ok(outputs)) => outputs,
+            Ok(Err(e)) => {
+                return self.failure(
+                    node.id.as_str(),
+                    report(NodeStatus::Failed, ctx.into_metrics(), Some(e.to_string())),
+                );
+            }
+            Err(panic) => {
+                let msg = panic_message(&panic);
+                return self.failure(
+                    node.id.as_str(),
+                    report(
+                        NodeStatus::Failed,
+                        ctx.into_metrics(),
+                        Some(format!("op `{}` panicked: {msg}", node.op.spec().name)),
+                    ),
+                );
+            }
+        };
+        if let Err(e) = check_outputs(node.op.spec(), &outputs.0) {
+            return self.failure(
+                node.id.as_str(),
+                report(NodeStatus::Failed, ctx.into_metrics(), Some(e.to_string())),
+            );
+        }
+        let entry = Arc::new(CacheEntry {
+            outputs,
+            metrics: ctx.into_metrics(),
+        });
+        self.memory.insert(key, entry.clone());
+        if let Some(disk) = &self.options.cache
+            && let Err(e) = disk.store(&key, &entry)
+        {
+            tracing::warn!(node = %node.id, "could not write the cache entry: {e}");
+        }
+        tracing::info!(node = %node.id, ms = start.elapsed().as_secs_f64() * 1e3, "ran");
+        Slot {
+            report: report(NodeStatus::Ran, entry.metrics.clone(), None),
+            entry: Some(entry),
+        }
+    }
+
+    fn failure(&self, id: &str, report: NodeReport) -> Slot {
+        tracing::error!(node = %id, "failed: {}", report.error.as_deref().unwrap_or(""));
+        self.progress.println(format!(
+            "node `{id}` failed: {}",
+            report.error.as_deref().unwrap_or("")
+        ));
+        Slot {
+            report,
+            entry: None,
+        }
+    }
+
+    /// The cached result for `key`, from memory or disk; a corrupt or stale disk
+    /// entry is logged, removed and treated as missing.
+    fn lookup(&self, id: &str, key: &NodeKey) -> Option<Arc<CacheEntry>> {
+        if let Some(entry) = self.memory.get(key) {
+            return Some(entry);
+        }
+        let disk = self.options.cache.as_ref()?;
+        let entry = match disk.load(key) {
+            Lookup::Hit(entry) => entry,
+            Lookup::Miss => return None,
+            Lookup::Corrupt(why) => {
+                tracing::warn!(node = %id, "corrupt cache entry, recomputing: {why}");
+                disk.remove(key);
+                return None;
+            }
+        };
+        if let Err(why) = entry.paths_intact() {
+            tracing::info!(node = %id, "stale cache entry, recomputing: {why}");
+            return None;
+        }
+        let entry = Arc::new(entry);
+        self.memory.insert(*key, entry.clone());
+        Some(entry)
+    }
+}
+
+/// An op must produce every declared output with its declared type.
+fn check_outputs(
+    spec: &crate::op::OpSpec,
+    outputs: &std::collections::BTreeMap<String, Value>,
+) -> Result<(), OpError> {
+    for port in &spec.outputs {
+        match outputs.get(&port.name) {
+            None => {
+                return Err(OpError::invalid(format!(
+                    "op `{}` did not produce its output `{}`",
+                    spec.name, port.name
+                )));
+            }
+            Some(v) if !port.accepts(v.value_type()) => {
+                return Err(OpError::invalid(format!(
+                    "op `{}` produced a {} on output `{}`, declared {}",
+                    spec.name,
+                    v.value_type(),
+                    port.name,
+                    port.type_names()
+                )));
+            }
+            Some(_) => {}
+        }
+    }
+    if let Some(extra) = outputs.keys().find(|k| spec.output_port(k).is_none()) {
+        return Err(OpError::invalid(format!(
+            "op `{}` produced an undeclared output `{extra}`",
+            spec.name
+        )));
+    }
+    Ok(())
+}
+
+fn panic_message(panic: &Box<dyn std::any::Any + Send>) -> String {
+    panic
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| panic.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "unknown panic".into())
+}
+
+/// A `Path` value for `path`, hashed by content (for ops that write files).
+pub fn path_value(path: &std::path::Path) -> Result<Value, OpError> {
+    let hash = crate::hash::hash_path(path).map_err(|e| OpError::io(path, e))?;
+    let abs = std::path::absolute(path).map_err(|e| OpError::io(path, e))?;
+    Ok(PathValue {
+        path: abs,
+        content_hash: hash.to_hex().to_string(),
+    }
+    .into())
+}

@@ -1,0 +1,23 @@
+//! fusegraph's built-in node types, one module per pipeline stage. Each module
+//! holds its algorithms as plain functions on plain types, plus thin op adapters
+//! that unpack values, call them and report metrics.
+
+pub mod io;
+pub mod math;
+
+use fusegraph_engine::Registry;
+use fusegraph_engine::registry::RegisterError;
+
+/// Registers every built-in node type.
+pub fn register_all(registry: &mut Registry) -> Result<(), RegisterError> {
+    io::register(registry)?;
+    math::register(registry)?;
+    Ok(())
+}
+
+/// A registry holding every built-in node type.
+pub fn builtin_registry() -> Registry {
+    let mut registry = Registry::new();
+    register_all(&mut registry).expect("built-in op names are unique");
+    registry
+}

@@ -1,0 +1,201 @@
+//! The `fusegraph` command line: parses arguments and hands them to the engine
+//! with the built-in node types. It holds no algorithm.
+
+mod bench;
+mod list;
+
+use anyhow::Context;
+use clap::{Parser, Subcommand};
+use fusegraph_engine::cache::{DiskCache, MemoryCache};
+use fusegraph_engine::schedule::RunOptions;
+use fusegraph_engine::session::{RunError, load_graph, run};
+use fusegraph_engine::{GraphErrors, Registry};
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+/// Exit code of an invalid graph or invalid arguments.
+const EXIT_INVALID: u8 = 2;
+/// Exit code of a run in which a node failed, or of an I/O failure.
+const EXIT_FAILED: u8 = 1;
+
+#[derive(Parser)]
+#[command(
+    name = "fusegraph",
+    version,
+    about = "MRI and stereo-vision surface reconstruction and fusion, as cached TOML dataflow graphs"
+)]
+struct Cli {
+    /// More logging on stderr (-v: info, -vv: debug).
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    verbose: u8,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run a graph: write its sinks' files and report.json under the output folder.
+    Run {
+        /// The graph file.
+        graph: PathBuf,
+        #[command(flatten)]
+        edit: Edit,
+        /// Output folder [default: out/<graph name>].
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Cache folder [default: .fusegraph/cache beside the graph].
+        #[arg(long, conflicts_with = "no_cache")]
+        cache: Option<PathBuf>,
+        /// Do not read or write the disk cache.
+        #[arg(long)]
+        no_cache: bool,
+        /// Worker threads [default: one per core].
+        #[arg(long, short = 'j', default_value_t = 0)]
+        jobs: usize,
+    },
+    /// Check a graph without running it.
+    Validate {
+        /// The graph file.
+        graph: PathBuf,
+        #[command(flatten)]
+        edit: Edit,
+    },
+    /// List the node types: ports, parameters (type, default, unit, range), docs.
+    Nodes {
+        /// Machine-readable JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Print a graph in Graphviz dot syntax.
+    Dot {
+        /// The graph file.
+        graph: PathBuf,
+        #[command(flatten)]
+        edit: Edit,
+    },
+    /// Measure the engine: scheduler overhead per node, cold and cached.
+    Bench {
+        #[command(subcommand)]
+        what: bench::BenchCommand,
+    },
+}
+
+#[derive(clap::Args)]
+struct Edit {
+    /// Override a parameter (ID.KEY=VALUE, VALUE in TOML syntax), swap an op
+    /// (ID.op=NAME) or rewire an input (ID.in.PORT=NODE.PORT). Repeatable.
+    #[arg(long = "set", value_name = "ID.KEY=VALUE")]
+    sets: Vec<String>,
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    init_logging(cli.verbose);
+    let registry = fusegraph_nodes::builtin_registry();
+    match execute(cli, &registry) {
+        Ok(code) => code,
+        Err(e) => {
+            if let Some(errors) = e.downcast_ref::<GraphErrors>() {
+                eprintln!("{errors}");
+                ExitCode::from(EXIT_INVALID)
+            } else {
+                eprintln!("error: {e:#}");
+                ExitCode::from(EXIT_FAILED)
+            }
+        }
+    }
+}
+
+fn execute(cli: Cli, registry: &Registry) -> anyhow::Result<ExitCode> {
+    match cli.command {
+        Command::Run {
+            graph,
+            edit,
+            out,
+            cache,
+            no_cache,
+            jobs,
+        } => {
+            let valid = load_graph(&graph, &edit.sets, registry)?;
+            let out_dir = out.unwrap_or_else(|| Path::new("out").join(&valid.name));
+            let cache = if no_cache {
+                None
+            } else {
+                let dir =
+                    cache.unwrap_or_else(|| graph_dir(&graph).join(".fusegraph").join("cache"));
+                Some(DiskCache::open(&dir)?)
+            };
+            let options = RunOptions {
+                out_dir: out_dir.clone(),
+                cache,
+                jobs,
+                progress: std::io::stderr().is_terminal() && cli.verbose == 0,
+            };
+            let outcome = run(&valid, &options, &MemoryCache::new()).map_err(|e| match e {
+                RunError::Graph(g) => anyhow::Error::new(g),
+                RunError::Io(io) => anyhow::Error::new(io).context("run failed"),
+            })?;
+            eprintln!("{}", list::summary(&outcome.report, &out_dir));
+            Ok(if outcome.report.succeeded() {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::from(EXIT_FAILED)
+            })
+        }
+        Command::Validate { graph, edit } => {
+            let valid = load_graph(&graph, &edit.sets, registry)?;
+            println!(
+                "{}: graph `{}` is valid ({} nodes)",
+                graph.display(),
+                valid.name,
+                valid.nodes.len()
+            );
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Nodes { json } => {
+            if json {
+                let specs: Vec<_> = registry.specs().collect();
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&specs).context("serialising node specs")?
+                );
+            } else {
+                print!("{}", list::nodes_text(registry));
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Dot { graph, edit } => {
+            let valid = load_graph(&graph, &edit.sets, registry)?;
+            print!("{}", fusegraph_engine::dot::to_dot(&valid));
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Bench { what } => {
+            bench::run_bench(what, registry)?;
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}
+
+fn graph_dir(graph: &Path) -> PathBuf {
+    graph
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."))
+        .to_path_buf()
+}
+
+fn init_logging(verbose: u8) {
+    let level = match verbose {
+        0 => "warn",
+        1 => "info",
+        _ => "debug",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_env("FUSEGRAPH_LOG")
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(level));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .init();
+}

@@ -299,10 +299,15 @@ impl ParamSpec {
 
     fn convert(&self, value: &toml::Value, base_dir: &Path) -> Result<ParamValue, String> {
         use toml::Value as T;
+        let kind = self.kind.to_string();
+        let article = if kind.starts_with(['a', 'e', 'i', 'o', 'u']) {
+            "an"
+        } else {
+            "a"
+        };
         let wrong = || {
             format!(
-                "expected a {}, found {} `{value}`",
-                self.kind,
+                "expected {article} {kind}, found {} `{value}`",
                 value.type_str()
             )
         };

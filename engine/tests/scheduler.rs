@@ -1,0 +1,400 @@
+//! The scheduler and cache, end to end on test ops: reuse, exact re-runs,
+//! corruption, failures, panics, parallelism, concurrent runs, sinks, file sources.
+
+mod common;
+
+use common::{registry, run_file, statuses, with_status, write_graph};
+use fusegraph_engine::NodeStatus::{self, Cached, Failed, Ran, Skipped};
+use fusegraph_engine::cache::DiskCache;
+use fusegraph_engine::key::node_keys;
+use fusegraph_engine::session::load_graph;
+
+/// a -> b -> c, and an independent branch x -> d.
+const DIAMOND: &str = r#"
+[graph]
+name = "diamond"
+
+[node.a]
+op = "test.source"
+value = 2.0
+
+[node.b]
+op = "test.add"
+in.a = "a.value"
+in.b = "a.value"
+
+[node.c]
+op = "test.add"
+in.a = "b.value"
+in.b = "x.value"
+
+[node.x]
+op = "test.source"
+value = 10.0
+
+[node.d]
+op = "test.add"
+in.a = "x.value"
+"#;
+
+fn scalar(outcome: &fusegraph_engine::schedule::RunOutcome, node: usize, port: &str) -> f64 {
+    let entry = outcome.results[node]
+        .as_ref()
+        .expect("node produced results");
+    match &entry.outputs.0[port] {
+        fusegraph_engine::Value::Scalar(v) => **v,
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn second_run_is_all_cached_and_runs_nothing() {
+    let t = tempfile::tempdir().unwrap();
+    let (reg, counters) = registry();
+    let g = write_graph(t.path(), "g.toml", DIAMOND);
+    let cache = t.path().join("cache");
+    let first = run_file(&reg, &g, &[], Some(&cache), &t.path().join("out")).unwrap();
+    assert!(first.report.succeeded());
+    assert_eq!(with_status(&first, Ran), ["a", "b", "c", "d", "x"]);
+    assert_eq!(scalar(&first, 2, "value"), 14.0);
+    assert_eq!(counters.total(), 5);
+
+    let second = run_file(&reg, &g, &[], Some(&cache), &t.path().join("out")).unwrap();
+    assert_eq!(with_status(&second, Cached), ["a", "b", "c", "d", "x"]);
+    assert_eq!(counters.total(), 5, "a cached run must not run any op");
+    assert_eq!(scalar(&second, 2, "value"), 14.0);
+    assert_eq!(
+        second.report.metrics()["c.sum"],
+        14.0,
+        "metrics come back from the cache"
+    );
+    for ((_, a), (_, b)) in first.report.nodes.iter().zip(&second.report.nodes) {
+        assert_eq!(a.key, b.key);
+    }
+}
+
+#[test]
+fn changing_one_parameter_reruns_exactly_that_node_and_its_downstream() {
+    let t = tempfile::tempdir().unwrap();
+    let (reg, counters) = registry();
+    let g = write_graph(t.path(), "g.toml", DIAMOND);
+    let cache = t.path().join("cache");
+    let out = t.path().join("out");
+    run_file(&reg, &g, &[], Some(&cache), &out).unwrap();
+    let changed = run_file(&reg, &g, &["a.value=3"], Some(&cache), &out).unwrap();
+    assert_eq!(with_status(&changed, Ran), ["a", "b", "c"]);
+    assert_eq!(with_status(&changed, Cached), ["d", "x"]);
+    assert_eq!(scalar(&changed, 2, "value"), 16.0);
+    assert_eq!(counters.runs("a"), 2);
+    assert_eq!(counters.runs("x"), 1);
+
+    // A parameter set to its default, or an integer for a float, is the same key.
+    let same = run_file(
+        &reg,
+        &g,
+        &["a.value=3.0", "x.repeat=1", "x.mode=\"fast\""],
+        Some(&cache),
+        &out,
+    )
+    .unwrap();
+    assert_eq!(with_status(&same, Ran), Vec::<String>::new());
+}
+
+#[test]
+fn corrupted_or_truncated_cache_entries_are_recomputed() {
+    let t = tempfile::tempdir().unwrap();
+    let (reg, counters) = registry();
+    let g = write_graph(t.path(), "g.toml", DIAMOND);
+    let cache = t.path().join("cache");
+    let out = t.path().join("out");
+    run_file(&reg, &g, &[], Some(&cache), &out).unwrap();
+
+    let graph = load_graph(&g, &[], &reg).unwrap();
+    let keys = node_keys(&graph, &out).unwrap();
+    let disk = DiskCache::open(&cache).unwrap();
+    let b = graph.index_of("b").unwrap();
+    let x = graph.index_of("x").unwrap();
+    // Flip one byte of b's entry, truncate x's.
+    let b_path = disk.entry_path(&keys[b]);
+    let mut bytes = std::fs::read(&b_path).unwrap();
+    let last = bytes.len() - 1;
+    bytes[last] ^= 0xff;
+    std::fs::write(&b_path, bytes).unwrap();
+    let x_path = disk.entry_path(&keys[x]);
+    let len = std::fs::metadata(&x_path).unwrap().len();
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open(&x_path)
+        .unwrap()
+        .set_len(len / 2)
+        .unwrap();
+
+    let again = run_file(&reg, &g, &[], Some(&cache), &out).unwrap();
+    assert_eq!(with_status(&again, Ran), ["b", "x"]);
+    assert_eq!(with_status(&again, Cached), ["a", "c", "d"]);
+    assert_eq!(scalar(&again, 2, "value"), 14.0);
+    assert_eq!(counters.runs("b"), 2);
+
+    // The recomputed entries were rewritten whole.
+    let third = run_file(&reg, &g, &[], Some(&cache), &out).unwrap();
+    assert_eq!(with_status(&third, Cached).len(), 5);
+}
+
+#[test]
+fn a_failing_node_stops_only_its_downstream() {
+    let t = tempfile::tempdir().unwrap();
+    let (reg, _) = registry();
+    let text = format!(
+        "{DIAMOND}\n[node.bad]\nop = \"test.fail\"\nin.a = \"a.value\"\n\n[node.after_bad]\nop = \"test.add\"\nin.a = \"bad.value\"\n\n[node.after_after]\nop = \"test.add\"\nin.a = \"after_bad.value\"\nin.b = \"d.value\"\n"
+    );
+    let g = write_graph(t.path(), "g.toml", &text);
+    let cache = t.path().join("cache");
+    let o = run_file(&reg, &g, &[], Some(&cache), &t.path().join("out")).unwrap();
+    let s = statuses(&o);
+    assert!(!o.report.succeeded());
+    assert_eq!(s["bad"], Failed);
+    assert_eq!(s["after_bad"], Skipped);
+    assert_eq!(s["after_after"], Skipped);
+    for id in ["a", "b", "c", "x", "d"] {
+        assert_eq!(s[id], Ran, "{id} is independent of the failure");
+    }
+    let bad = o.report.node("bad").unwrap();
+    assert!(bad.error.as_deref().unwrap().contains("deliberate failure"));
+    let skipped = o.report.node("after_bad").unwrap();
+    assert!(skipped.error.as_deref().unwrap().contains("`bad`"));
+
+    // A failure is not cached: the next run tries again.
+    let again = run_file(&reg, &g, &[], Some(&cache), &t.path().join("out")).unwrap();
+    assert_eq!(statuses(&again)["bad"], Failed);
+    assert_eq!(statuses(&again)["d"], Cached);
+}
+
+#[test]
+fn a_panicking_op_is_a_failed_node_not_a_crash() {
+    let t = tempfile::tempdir().unwrap();
+    let (reg, _) = registry();
+    let text = format!("{DIAMOND}\n[node.boom]\nop = \"test.panic\"\nin.a = \"a.value\"\n");
+    let g = write_graph(t.path(), "g.toml", &text);
+    let o = run_file(&reg, &g, &[], None, &t.path().join("out")).unwrap();
+    let boom = o.report.node("boom").unwrap();
+    assert_eq!(boom.status, Failed);
+    let msg = boom.error.as_deref().unwrap();
+    assert!(
+        msg.contains("test.panic")
+            && msg.contains("panicked")
+            && msg.contains("index out of bounds"),
+        "{msg}"
+    );
+    assert_eq!(statuses(&o)["c"], Ran);
+}
+
+#[test]
+fn an_op_producing_the_wrong_type_fails_clearly() {
+    let t = tempfile::tempdir().unwrap();
+    let (reg, _) = registry();
+    let g = write_graph(t.path(), "g.toml", "[node.l]\nop = \"test.liar\"\n");
+    let o = run_file(&reg, &g, &[], None, &t.path().join("out")).unwrap();
+    let msg = o.report.node("l").unwrap().error.clone().unwrap();
+    assert!(
+        msg.contains("produced a Volume on output `value`, declared Scalar"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn independent_nodes_run_in_parallel() {
+    let t = tempfile::tempdir().unwrap();
+    let (reg, counters) = registry();
+    let text: String = (0..4)
+        .map(|i| format!("[node.s{i}]\nop = \"test.slow\"\nms = 100\n\n"))
+        .collect();
+    let g = write_graph(t.path(), "g.toml", &text);
+    run_file(&reg, &g, &[], None, &t.path().join("out")).unwrap();
+    assert_eq!(
+        counters
+            .max_running
+            .load(std::sync::atomic::Ordering::SeqCst),
+        2,
+        "jobs = 2"
+    );
+}
+
+#[test]
+fn concurrent_runs_on_one_cache_both_succeed_and_leave_it_valid() {
+    let t = tempfile::tempdir().unwrap();
+    let text: String = DIAMOND.to_string()
+        + &(0..40)
+            .map(|i| {
+                format!(
+                    "\n[node.e{i}]\nop = \"test.add\"\nin.a = \"c.value\"\nin.b = \"d.value\"\n"
+                )
+            })
+            .collect::<String>();
+    let g = write_graph(t.path(), "g.toml", &text);
+    let cache = t.path().join("cache");
+    std::thread::scope(|s| {
+        let runs: Vec<_> = (0..3)
+            .map(|i| {
+                let (g, cache, out) = (&g, &cache, t.path().join(format!("out{i}")));
+                s.spawn(move || {
+                    let (reg, _) = registry();
+                    run_file(&reg, g, &[], Some(cache), &out).unwrap()
+                })
+            })
+            .collect();
+        for r in runs {
+            assert!(r.join().unwrap().report.succeeded());
+        }
+    });
+    let (reg, counters) = registry();
+    let after = run_file(&reg, &g, &[], Some(&cache), &t.path().join("out")).unwrap();
+    assert_eq!(with_status(&after, Cached).len(), 45);
+    assert_eq!(counters.total(), 0);
+    let leftovers: Vec<_> = walk(&cache)
+        .into_iter()
+        .filter(|p| p.ends_with(".tmp"))
+        .collect();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
+}
+
+fn walk(dir: &std::path::Path) -> Vec<String> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() {
+            out.extend(walk(&p));
+        } else {
+            out.push(p.display().to_string());
+        }
+    }
+    out
+}
+
+#[test]
+fn no_cache_runs_everything_and_writes_no_entries() {
+    let t = tempfile::tempdir().unwrap();
+    let (reg, counters) = registry();
+    let g = write_graph(t.path(), "g.toml", DIAMOND);
+    run_file(&reg, &g, &[], None, &t.path().join("out")).unwrap();
+    let o = run_file(&reg, &g, &[], None, &t.path().join("out")).unwrap();
+    assert_eq!(with_status(&o, Ran).len(), 5);
+    assert_eq!(counters.total(), 10);
+    assert!(!t.path().join("cache").exists());
+}
+
+#[test]
+fn sinks_rerun_when_their_file_or_output_folder_changes() {
+    let t = tempfile::tempdir().unwrap();
+    let (reg, _) = registry();
+    let text = format!(
+        "{DIAMOND}\n[node.w]\nop = \"test.write\"\nin.value = \"c.value\"\nfile = \"sub/c.txt\"\n"
+    );
+    let g = write_graph(t.path(), "g.toml", &text);
+    let cache = t.path().join("cache");
+    let out = t.path().join("out");
+    run_file(&reg, &g, &[], Some(&cache), &out).unwrap();
+    assert_eq!(
+        std::fs::read_to_string(out.join("sub/c.txt")).unwrap(),
+        "14"
+    );
+    let status = |o: &fusegraph_engine::schedule::RunOutcome| statuses(o)["w"];
+    assert_eq!(
+        status(&run_file(&reg, &g, &[], Some(&cache), &out).unwrap()),
+        Cached
+    );
+
+    std::fs::remove_file(out.join("sub/c.txt")).unwrap();
+    assert_eq!(
+        status(&run_file(&reg, &g, &[], Some(&cache), &out).unwrap()),
+        Ran
+    );
+    assert!(out.join("sub/c.txt").exists());
+
+    let other = t.path().join("other");
+    assert_eq!(
+        status(&run_file(&reg, &g, &[], Some(&cache), &other).unwrap()),
+        Ran
+    );
+    assert!(other.join("sub/c.txt").exists());
+    assert!(other.join("report.json").exists());
+
+    let escape = run_file(&reg, &g, &["w.file=../x.txt"], Some(&cache), &out).unwrap();
+    assert!(
+        escape
+            .report
+            .node("w")
+            .unwrap()
+            .error
+            .as_deref()
+            .unwrap()
+            .contains("inside the output folder")
+    );
+}
+
+#[test]
+fn file_sources_are_keyed_by_content() {
+    let t = tempfile::tempdir().unwrap();
+    let (reg, _) = registry();
+    std::fs::write(t.path().join("data.bin"), b"12345").unwrap();
+    let g = write_graph(
+        t.path(),
+        "g.toml",
+        "[node.f]\nop = \"test.file\"\npath = \"data.bin\"\n\n[node.g]\nop = \"test.add\"\nin.a = \"f.bytes\"\n",
+    );
+    let cache = t.path().join("cache");
+    let out = t.path().join("out");
+    let status = |o: fusegraph_engine::schedule::RunOutcome| statuses(&o)["f"];
+    assert_eq!(
+        status(run_file(&reg, &g, &[], Some(&cache), &out).unwrap()),
+        Ran
+    );
+    // Rewriting the same bytes (new mtime) keeps the key.
+    std::fs::write(t.path().join("data.bin"), b"12345").unwrap();
+    assert_eq!(
+        status(run_file(&reg, &g, &[], Some(&cache), &out).unwrap()),
+        Cached
+    );
+    // A copy of the same bytes elsewhere is the same key too.
+    std::fs::copy(t.path().join("data.bin"), t.path().join("copy.bin")).unwrap();
+    assert_eq!(
+        status(run_file(&reg, &g, &["f.path=copy.bin"], Some(&cache), &out).unwrap()),
+        Cached
+    );
+    std::fs::write(t.path().join("data.bin"), b"123456").unwrap();
+    let changed = run_file(&reg, &g, &[], Some(&cache), &out).unwrap();
+    assert_eq!(statuses(&changed)["f"], Ran);
+    assert_eq!(scalar(&changed, 1, "value"), 6.0);
+}
+
+#[test]
+fn the_report_file_holds_every_node() {
+    let t = tempfile::tempdir().unwrap();
+    let (reg, _) = registry();
+    let text = format!("{DIAMOND}\n[node.bad]\nop = \"test.fail\"\nin.a = \"a.value\"\n");
+    let g = write_graph(t.path(), "g.toml", &text);
+    let out = t.path().join("out");
+    run_file(&reg, &g, &[], None, &out).unwrap();
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["graph"], "diamond");
+    let ids: Vec<&str> = report["nodes"]
+        .as_object()
+        .unwrap()
+        .keys()
+        .map(String::as_str)
+        .collect();
+    assert_eq!(ids, ["a", "b", "c", "x", "d", "bad"], "file order");
+    assert_eq!(report["nodes"]["c"]["status"], "ran");
+    assert_eq!(report["nodes"]["c"]["op"], "test.add");
+    assert_eq!(report["nodes"]["c"]["key"].as_str().unwrap().len(), 64);
+    assert!(report["nodes"]["c"]["ms"].as_f64().unwrap() >= 0.0);
+    assert_eq!(report["nodes"]["bad"]["status"], "failed");
+    assert!(
+        report["nodes"]["bad"]["error"]
+            .as_str()
+            .unwrap()
+            .contains("deliberate")
+    );
+    assert_eq!(report["metrics"]["c.sum"], 14.0);
+    let _: NodeStatus = Ran;
+}

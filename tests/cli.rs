@@ -1,0 +1,319 @@
+//! The `fusegraph` command line, end to end: run, cache reuse, overrides,
+//! validation exit codes, failures, concurrent processes, listing and dot.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn fusegraph(args: &[&str], cwd: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_fusegraph"))
+        .args(args)
+        .current_dir(cwd)
+        .output()
+        .expect("fusegraph runs")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn demo_graph() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("graphs/demo.toml")
+}
+
+/// A copy of the demo graph in a fresh folder, so tests do not share a cache.
+fn demo_copy(dir: &Path) -> String {
+    std::fs::copy(demo_graph(), dir.join("demo.toml")).unwrap();
+    "demo.toml".into()
+}
+
+fn report(dir: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap()
+}
+
+fn status<'a>(r: &'a serde_json::Value, node: &str) -> &'a str {
+    r["nodes"][node]["status"].as_str().unwrap()
+}
+
+#[test]
+fn demo_runs_then_is_cached() {
+    let t = tempfile::tempdir().unwrap();
+    let g = demo_copy(t.path());
+    let o = fusegraph(&["run", &g], t.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = t.path().join("out/demo");
+    let r = report(&out);
+    assert_eq!(r["graph"], "demo");
+    assert!((r["metrics"]["focal_mm.value"].as_f64().unwrap() - 7.68).abs() < 1e-12);
+    assert!((r["metrics"]["verging_deg.value"].as_f64().unwrap() - 7.829_077).abs() < 1e-6);
+    let written: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("focal_mm.json")).unwrap()).unwrap();
+    assert_eq!(written["value"], 7.68);
+    assert!(
+        t.path().join(".fusegraph/cache").is_dir(),
+        "default cache beside the graph"
+    );
+
+    let o = fusegraph(&["run", &g], t.path());
+    assert!(o.status.success());
+    let r = report(&out);
+    for (id, n) in r["nodes"].as_object().unwrap() {
+        assert_eq!(n["status"], "cached", "{id}");
+    }
+
+    let o = fusegraph(&["run", &g, "--set", "fov_mm.value=240"], t.path());
+    assert!(o.status.success());
+    let r = report(&out);
+    for id in ["fov_mm", "focal_mm", "write_focal"] {
+        assert_eq!(status(&r, id), "ran", "{id}");
+    }
+    for id in [
+        "sensor_mm",
+        "dmin_mm",
+        "s_times_dmin",
+        "verging_deg",
+        "write_verging",
+    ] {
+        assert_eq!(status(&r, id), "cached", "{id}");
+    }
+    assert_eq!(r["metrics"]["focal_mm.value"], 8.0);
+}
+
+#[test]
+fn out_cache_and_no_cache_flags() {
+    let t = tempfile::tempdir().unwrap();
+    let g = demo_copy(t.path());
+    let o = fusegraph(
+        &["run", &g, "--out", "results", "--cache", "c", "--jobs", "1"],
+        t.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(t.path().join("results/report.json").exists());
+    assert!(t.path().join("results/verging_deg.json").exists());
+    assert!(t.path().join("c").is_dir());
+    assert!(!t.path().join(".fusegraph").exists());
+    let o = fusegraph(&["run", &g, "--no-cache", "--out", "nc"], t.path());
+    assert!(o.status.success());
+    assert_eq!(status(&report(&t.path().join("nc")), "focal_mm"), "ran");
+    assert!(!t.path().join(".fusegraph").exists());
+}
+
+#[test]
+fn invalid_graphs_exit_2_naming_node_and_key() {
+    let t = tempfile::tempdir().unwrap();
+    let g = demo_copy(t.path());
+    for (args, says) in [
+        (
+            vec!["validate", &g, "--set", "focal_mm.operation=\"modulo\""],
+            "node `focal_mm`, key `operation`",
+        ),
+        (
+            vec!["run", &g, "--set", "focal_mm.op=math.binry"],
+            "did you mean `math.binary`?",
+        ),
+        (
+            vec!["run", &g, "--set", "write_focal.in.value=nowhere.value"],
+            "key `in.value`: no node `nowhere`",
+        ),
+        (vec!["validate", "missing.toml"], "missing.toml"),
+        (vec!["dot", &g, "--set", "bad"], "expected ID.KEY=VALUE"),
+    ] {
+        let o = fusegraph(&args, t.path());
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
+        assert!(stderr(&o).contains(says), "{args:?}: {}", stderr(&o));
+    }
+    assert!(!t.path().join("out").exists(), "nothing ran");
+    let o = fusegraph(&["validate", &g], t.path());
+    assert!(o.status.success());
+    assert!(String::from_utf8_lossy(&o.stdout).contains("is valid (9 nodes)"));
+}
+
+#[test]
+fn a_failing_node_exits_1_and_its_independent_branch_finishes() {
+    let t = tempfile::tempdir().unwrap();
+    let g = demo_copy(t.path());
+    let o = fusegraph(&["run", &g, "--set", "fov_mm.value=0"], t.path());
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("division by zero"), "{}", stderr(&o));
+    let r = report(&t.path().join("out/demo"));
+    assert_eq!(status(&r, "focal_mm"), "failed");
+    assert!(
+        r["nodes"]["focal_mm"]["error"]
+            .as_str()
+            .unwrap()
+            .contains("division by zero")
+    );
+    assert_eq!(status(&r, "write_focal"), "skipped");
+    assert_eq!(status(&r, "verging_deg"), "ran");
+    assert_eq!(status(&r, "write_verging"), "ran");
+    assert!(t.path().join("out/demo/verging_deg.json").exists());
+}
+
+#[test]
+fn corrupt_cache_files_are_recomputed() {
+    let t = tempfile::tempdir().unwrap();
+    let g = demo_copy(t.path());
+    assert!(fusegraph(&["run", &g], t.path()).status.success());
+    let mut corrupted = 0;
+    for shard in std::fs::read_dir(t.path().join(".fusegraph/cache/v1")).unwrap() {
+        for entry in std::fs::read_dir(shard.unwrap().path()).unwrap() {
+            let p = entry.unwrap().path();
+            let bytes = std::fs::read(&p).unwrap();
+            std::fs::write(&p, &bytes[..bytes.len() - 3]).unwrap();
+            corrupted += 1;
+        }
+    }
+    assert_eq!(corrupted, 9);
+    let o = fusegraph(&["run", &g], t.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("corrupt cache entry"),
+        "logged: {}",
+        stderr(&o)
+    );
+    let r = report(&t.path().join("out/demo"));
+    assert_eq!(status(&r, "focal_mm"), "ran");
+    assert_eq!(r["metrics"]["focal_mm.value"], 7.68);
+    assert!(fusegraph(&["run", &g], t.path()).status.success());
+    assert_eq!(
+        status(&report(&t.path().join("out/demo")), "focal_mm"),
+        "cached"
+    );
+}
+
+#[test]
+fn concurrent_processes_share_one_cache() {
+    let t = tempfile::tempdir().unwrap();
+    // A binary tree of 300 nodes (n_i reads n_(i-1)/2), wide enough that the
+    // processes' cache writes interleave.
+    let mut text = String::from("[node.c]\nop = \"math.constant\"\nvalue = 1.0\n");
+    for i in 0..300 {
+        let a = if i == 0 {
+            "c".to_string()
+        } else {
+            format!("n{}", (i - 1) / 2)
+        };
+        text += &format!(
+            "\n[node.n{i}]\nop = \"math.binary\"\nin.a = \"{a}.value\"\nin.b = \"c.value\"\n"
+        );
+    }
+    std::fs::write(t.path().join("wide.toml"), text).unwrap();
+    let children: Vec<_> = (0..4)
+        .map(|i| {
+            Command::new(env!("CARGO_BIN_EXE_fusegraph"))
+                .args(["run", "wide.toml", "--out", &format!("out{i}")])
+                .current_dir(t.path())
+                .stderr(std::process::Stdio::piped())
+                .spawn()
+                .unwrap()
+        })
+        .collect();
+    for c in children {
+        let o = c.wait_with_output().unwrap();
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let o = fusegraph(&["run", "wide.toml"], t.path());
+    assert!(o.status.success());
+    assert!(!stderr(&o).contains("corrupt"), "{}", stderr(&o));
+    let r = report(&t.path().join("out/wide"));
+    assert!(
+        r["nodes"]
+            .as_object()
+            .unwrap()
+            .values()
+            .all(|n| n["status"] == "cached")
+    );
+    // n299 is 8 levels below n0 = 2: 299 -> 149 -> 74 -> 36 -> 17 -> 8 -> 3 -> 1 -> 0.
+    assert_eq!(r["metrics"]["n299.value"], 10.0);
+}
+
+#[test]
+fn nodes_lists_every_declared_field() {
+    let t = tempfile::tempdir().unwrap();
+    let o = fusegraph(&["nodes", "--json"], t.path());
+    assert!(o.status.success());
+    let specs: Vec<serde_json::Value> = serde_json::from_slice(&o.stdout).unwrap();
+    let binary = specs
+        .iter()
+        .find(|s| s["name"] == "math.binary")
+        .expect("math.binary listed");
+    assert_eq!(binary["version"], 1);
+    assert_eq!(binary["inputs"][0]["name"], "a");
+    assert_eq!(binary["inputs"][0]["types"][0], "Scalar");
+    assert_eq!(binary["outputs"][0]["name"], "value");
+    let p = &binary["params"][0];
+    assert_eq!(
+        (
+            p["name"].as_str(),
+            p["kind"].as_str(),
+            p["default"].as_str()
+        ),
+        (Some("operation"), Some("string"), Some("add"))
+    );
+    assert!(p["choices"].as_array().unwrap().len() >= 8);
+    for s in &specs {
+        for key in [
+            "name",
+            "version",
+            "doc",
+            "inputs",
+            "outputs",
+            "params",
+            "writes_output",
+        ] {
+            assert!(s.get(key).is_some(), "{} lacks {key}", s["name"]);
+        }
+        for p in s["params"].as_array().unwrap() {
+            for key in ["name", "kind", "default", "unit", "min", "max", "doc"] {
+                assert!(
+                    p.get(key).is_some(),
+                    "{}.{} lacks {key}",
+                    s["name"],
+                    p["name"]
+                );
+            }
+        }
+    }
+    let text = String::from_utf8(fusegraph(&["nodes"], t.path()).stdout).unwrap();
+    assert!(
+        text.contains("math.binary (v1)") && text.contains("operation: string = \"add\""),
+        "{text}"
+    );
+}
+
+#[test]
+fn dot_draws_nodes_and_edges() {
+    let t = tempfile::tempdir().unwrap();
+    let g = demo_copy(t.path());
+    let o = fusegraph(&["dot", &g], t.path());
+    assert!(o.status.success());
+    let dot = String::from_utf8(o.stdout).unwrap();
+    assert!(dot.starts_with("digraph \"demo\""));
+    assert!(
+        dot.contains("\"focal_mm\" [label=\"focal_mm\\nmath.binary\"]"),
+        "{dot}"
+    );
+    assert!(
+        dot.contains("\"fov_mm\" -> \"focal_mm\" [label=\"value -> b\"]"),
+        "{dot}"
+    );
+}
+
+#[test]
+fn every_command_has_help() {
+    let t = tempfile::tempdir().unwrap();
+    for cmd in [
+        vec!["--help"],
+        vec!["run", "--help"],
+        vec!["validate", "--help"],
+        vec!["nodes", "--help"],
+        vec!["dot", "--help"],
+        vec!["bench", "scheduler", "--help"],
+    ] {
+        let o = fusegraph(&cmd, t.path());
+        assert!(o.status.success(), "{cmd:?}");
+        assert!(
+            String::from_utf8_lossy(&o.stdout).contains("Usage"),
+            "{cmd:?}"
+        );
+    }
+}

@@ -118,7 +118,7 @@ fn execute(cli: Cli, registry: &Registry) -> anyhow::Result<ExitCode> {
             jobs,
         } => {
             let valid = load_graph(&graph, &edit.sets, registry)?;
-            let out_dir = out.unwrap_or_else(|| Path::new("out").join(&valid.name));
+            let out_dir = out.unwrap_or_else(|| Path::new("out").join(folder_name(&valid.name)));
             let cache = if no_cache {
                 None
             } else {
@@ -174,6 +174,25 @@ fn execute(cli: Cli, registry: &Registry) -> anyhow::Result<ExitCode> {
             bench::run_bench(what, registry)?;
             Ok(ExitCode::SUCCESS)
         }
+    }
+}
+
+/// A graph name made safe as one folder name (no separators, no `..`).
+fn folder_name(name: &str) -> String {
+    let safe: String = name
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    if safe.is_empty() {
+        "graph".into()
+    } else {
+        safe
     }
 }
 

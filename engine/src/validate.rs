@@ -90,15 +90,11 @@ pub fn validate(doc: &GraphDoc, registry: &Registry) -> Result<ValidGraph, Graph
         for (key, value) in &decl.params {
             match spec.param_spec(key) {
                 None => {
-                    let valid: Vec<&str> = spec.params.iter().map(|p| p.name.as_str()).collect();
-                    let hint = closest(key, valid.iter().copied())
+                    let valid = spec.params.iter().map(|p| p.name.as_str());
+                    let hint = closest(key, valid.clone())
                         .map(|c| format!("did you mean `{c}`? "))
                         .unwrap_or_default();
-                    let list = if valid.is_empty() {
-                        "none".into()
-                    } else {
-                        valid.join(", ")
-                    };
+                    let list = list_or_none(valid);
                     errors.push(
                         err(
                             ErrorKind::UnknownParam,
@@ -150,12 +146,7 @@ pub fn validate(doc: &GraphDoc, registry: &Registry) -> Result<ValidGraph, Graph
         for input in &decl.inputs {
             let key = format!("in.{}", input.port);
             let Some(port) = spec.input_port(&input.port) else {
-                let valid: Vec<&str> = spec.inputs.iter().map(|p| p.name.as_str()).collect();
-                let list = if valid.is_empty() {
-                    "none".into()
-                } else {
-                    valid.join(", ")
-                };
+                let list = list_or_none(spec.inputs.iter().map(|p| p.name.as_str()));
                 errors.push(
                     err(
                         ErrorKind::UnknownInput,
@@ -184,20 +175,13 @@ pub fn validate(doc: &GraphDoc, registry: &Registry) -> Result<ValidGraph, Graph
             let Some(source_op) = ops[from] else { continue };
             let source_spec = source_op.spec();
             let Some(out) = source_spec.output_port(&input.source_port) else {
-                let outs: Vec<&str> = source_spec
-                    .outputs
-                    .iter()
-                    .map(|p| p.name.as_str())
-                    .collect();
+                let outs = list_or_none(source_spec.outputs.iter().map(|p| p.name.as_str()));
                 errors.push(
                     err(
                         ErrorKind::UnknownSource,
                         format!(
                             "node `{}` ({}) has no output `{}`; outputs: {}",
-                            input.source_node,
-                            source_spec.name,
-                            input.source_port,
-                            outs.join(", ")
+                            input.source_node, source_spec.name, input.source_port, outs
                         ),
                     )
                     .at_key(&key),
@@ -274,6 +258,16 @@ pub fn validate(doc: &GraphDoc, registry: &Registry) -> Result<ValidGraph, Graph
         nodes,
         order,
     })
+}
+
+/// Names joined by commas, or `none`.
+fn list_or_none<'a>(names: impl Iterator<Item = &'a str>) -> String {
+    let names: Vec<&str> = names.collect();
+    if names.is_empty() {
+        "none".into()
+    } else {
+        names.join(", ")
+    }
 }
 
 /// A topological order, or every cycle (each as its nodes in order along it).

@@ -114,6 +114,11 @@ impl DiskCache {
         Ok(DiskCache { dir })
     }
 
+    /// The folder holding the files of nodes that produce files, by key.
+    pub fn files_root(&self) -> PathBuf {
+        self.dir.join("files")
+    }
+
     /// Where the entry for `key` lives.
     pub fn entry_path(&self, key: &NodeKey) -> PathBuf {
         let hex = key.hex();

@@ -20,6 +20,7 @@ pub mod schedule;
 pub mod session;
 pub mod validate;
 pub mod value;
+pub mod workdir;
 
 pub use error::{ErrorKind, GraphError, GraphErrors};
 pub use op::{Inputs, Op, OpError, OpSpec, Outputs, PortSpec, RunCtx};

@@ -287,6 +287,7 @@ pub struct RunCtx {
     node_id: String,
     out_dir: PathBuf,
     metrics: BTreeMap<String, f64>,
+    files: Option<crate::workdir::WorkDir>,
 }
 
 impl RunCtx {
@@ -296,7 +297,32 @@ impl RunCtx {
             node_id: node_id.into(),
             out_dir: out_dir.to_path_buf(),
             metrics: BTreeMap::new(),
+            files: None,
         }
+    }
+
+    /// Lets the op write files into a content-addressed folder (see
+    /// [`RunCtx::work_dir`]) that becomes `files_root/<key>` when it succeeds.
+    pub fn with_files(mut self, files_root: &Path, key_hex: &str) -> Self {
+        self.files = Some(crate::workdir::WorkDir::new(files_root, key_hex));
+        self
+    }
+
+    /// A folder for files the op produces as `Path` outputs (e.g. a generated
+    /// DICOM series). It is private to this run of the node; when the op succeeds
+    /// the engine moves it into the cache under the node's key and rewrites the
+    /// `Path` outputs that point into it. Only ops run by the scheduler have one.
+    pub fn work_dir(&mut self) -> Result<PathBuf, OpError> {
+        let files = self
+            .files
+            .as_mut()
+            .ok_or_else(|| OpError::invalid("this context has no folder for output files"))?;
+        files.create()
+    }
+
+    /// Takes the files folder, if the op asked for one.
+    pub(crate) fn take_files(&mut self) -> Option<crate::workdir::WorkDir> {
+        self.files.take()
     }
 
     /// The id of the node being run.

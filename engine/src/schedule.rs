@@ -214,37 +214,49 @@ impl<'a> Executor<'a> {
         }
 
         self.set_running(&node.id, true);
-        let mut ctx = RunCtx::new(&node.id, &self.options.out_dir);
+        let files_root = match &self.options.cache {
+            Some(disk) => disk.files_root(),
+            None => self.options.out_dir.join(".work"),
+        };
+        let mut ctx =
+            RunCtx::new(&node.id, &self.options.out_dir).with_files(&files_root, &key.hex());
         let outcome = catch_unwind(AssertUnwindSafe(|| {
             node.op.run(&inputs, &node.params, &mut ctx)
         }));
         self.set_running(&node.id, false);
-        let outputs = match outcome {
-            Ok(Ok(outputs)) => outputs,
-            Ok(Err(e)) => {
-                return self.failure(
-                    node.id.as_str(),
-                    report(NodeStatus::Failed, ctx.into_metrics(), Some(e.to_string())),
-                );
+        let files = ctx.take_files();
+        let spec = node.op.spec();
+        let result = match outcome {
+            Ok(Ok(outputs)) => check_outputs(spec, &outputs.0)
+                .map(|()| outputs)
+                .map_err(|e| e.to_string()),
+            Ok(Err(e)) => Err(e.to_string()),
+            Err(panic) => Err(format!(
+                "op `{}` panicked: {}",
+                spec.name,
+                panic_message(&panic)
+            )),
+        };
+        let result = match (result, files) {
+            (Ok(mut outputs), Some(files)) => files
+                .finalize(&mut outputs)
+                .map(|()| outputs)
+                .map_err(|e| e.to_string()),
+            (Err(e), Some(files)) => {
+                files.discard();
+                Err(e)
             }
-            Err(panic) => {
-                let msg = panic_message(&panic);
+            (result, None) => result,
+        };
+        let outputs = match result {
+            Ok(outputs) => outputs,
+            Err(msg) => {
                 return self.failure(
-                    node.id.as_str(),
-                    report(
-                        NodeStatus::Failed,
-                        ctx.into_metrics(),
-                        Some(format!("op `{}` panicked: {msg}", node.op.spec().name)),
-                    ),
+                    &node.id,
+                    report(NodeStatus::Failed, ctx.into_metrics(), Some(msg)),
                 );
             }
         };
-        if let Err(e) = check_outputs(node.op.spec(), &outputs.0) {
-            return self.failure(
-                node.id.as_str(),
-                report(NodeStatus::Failed, ctx.into_metrics(), Some(e.to_string())),
-            );
-        }
         let entry = Arc::new(CacheEntry {
             outputs,
             metrics: ctx.into_metrics(),

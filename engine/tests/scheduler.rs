@@ -398,3 +398,66 @@ fn the_report_file_holds_every_node() {
     assert_eq!(report["metrics"]["c.sum"], 14.0);
     let _: NodeStatus = Ran;
 }
+
+#[test]
+fn generated_files_live_in_the_cache_under_the_node_key() {
+    let t = tempfile::tempdir().unwrap();
+    let (reg, counters) = registry();
+    let g = write_graph(
+        t.path(),
+        "g.toml",
+        "[node.gen]\nop = \"test.generate\"\nfiles = 4\n",
+    );
+    let cache = t.path().join("cache");
+    let out = t.path().join("out");
+    let first = run_file(&reg, &g, &[], Some(&cache), &out).unwrap();
+    let dir = match &first.results[0].as_ref().unwrap().outputs.0["dir"] {
+        fusegraph_engine::Value::Path(p) => p.path.clone(),
+        other => panic!("{other:?}"),
+    };
+    let key = &first.report.node("gen").unwrap().key;
+    assert_eq!(
+        dir,
+        std::path::absolute(cache.join("v1/files").join(key).join("series")).unwrap()
+    );
+    assert_eq!(
+        std::fs::read_to_string(dir.join("slice3.txt")).unwrap(),
+        "slice 3"
+    );
+    let leftovers: Vec<_> = walk(&cache)
+        .into_iter()
+        .filter(|p| p.contains(".tmp-"))
+        .collect();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
+
+    assert_eq!(
+        statuses(&run_file(&reg, &g, &[], Some(&cache), &out).unwrap())["gen"],
+        Cached
+    );
+    // Edited or deleted files make the entry stale: the node runs again.
+    std::fs::write(dir.join("slice0.txt"), "edited").unwrap();
+    assert_eq!(
+        statuses(&run_file(&reg, &g, &[], Some(&cache), &out).unwrap())["gen"],
+        Ran
+    );
+    assert_eq!(
+        std::fs::read_to_string(dir.join("slice0.txt")).unwrap(),
+        "slice 0"
+    );
+    std::fs::remove_dir_all(cache.join("v1/files")).unwrap();
+    assert_eq!(
+        statuses(&run_file(&reg, &g, &[], Some(&cache), &out).unwrap())["gen"],
+        Ran
+    );
+    assert!(dir.join("slice2.txt").exists());
+    assert_eq!(counters.runs("gen"), 3);
+
+    let nc = run_file(&reg, &g, &[], None, &out).unwrap();
+    assert!(nc.report.succeeded());
+    assert!(
+        out.join(".work")
+            .join(key)
+            .join("series/slice1.txt")
+            .exists()
+    );
+}

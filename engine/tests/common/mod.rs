@@ -186,6 +186,24 @@ pub fn registry() -> (Registry, Arc<Counters>) {
             Ok(Outputs::new().with("file", path_value(&path)?))
         }),
     );
+    add(
+        OpSpec::new(
+            "test.generate",
+            1,
+            "Writes files into its content-addressed folder",
+        )
+        .param(ParamSpec::int("files", 3, "", "How many files"))
+        .output("dir", ValueType::Path, "The folder"),
+        Box::new(|_, p, ctx, _| {
+            let dir = ctx.work_dir()?.join("series");
+            std::fs::create_dir_all(&dir).map_err(|e| OpError::io(&dir, e))?;
+            for i in 0..p.count("files")? {
+                let f = dir.join(format!("slice{i}.txt"));
+                std::fs::write(&f, format!("slice {i}")).map_err(|e| OpError::io(&f, e))?;
+            }
+            Ok(Outputs::new().with("dir", path_value(&dir)?))
+        }),
+    );
     (r, counters)
 }
 

@@ -2,8 +2,10 @@
 //! holds its algorithms as plain functions on plain types, plus thin op adapters
 //! that unpack values, call them and report metrics.
 
+pub mod camera;
 pub mod io;
 pub mod math;
+pub mod phantom;
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;
@@ -12,6 +14,7 @@ use fusegraph_engine::registry::RegisterError;
 pub fn register_all(registry: &mut Registry) -> Result<(), RegisterError> {
     io::register(registry)?;
     math::register(registry)?;
+    phantom::register(registry)?;
     Ok(())
 }
 

@@ -1,0 +1,188 @@
+//! What the simulated cameras look at: a printed chessboard in front of a
+//! cluttered wall (calibration), and the phantom on a cloth-covered table lit by
+//! an off-axis lamp (phantom views). Lambertian shading; no cast shadows.
+
+use super::render::Scene;
+use super::shape::{PhantomShape, Surface};
+use super::texture::{ValueNoise, fast_floor};
+use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
+
+/// A chessboard of `cols x rows` inner corners (OpenCV's pattern size), squares
+/// `square_mm` across, white border `margin_mm` wide. Board frame: x along the
+/// columns, y along the rows, origin at the first inner corner, z into the board.
+#[derive(Debug, Clone)]
+pub struct Chessboard {
+    /// Inner corners per row.
+    pub cols: usize,
+    /// Inner corners per column.
+    pub rows: usize,
+    /// Square size, mm.
+    pub square_mm: f64,
+    /// White border around the squares, mm.
+    pub margin_mm: f64,
+}
+
+impl Chessboard {
+    /// Inner corner positions in the board frame, row by row (mm).
+    pub fn corners(&self) -> Vec<Point3<f64>> {
+        (0..self.rows)
+            .flat_map(|r| (0..self.cols).map(move |c| (c, r)))
+            .map(|(c, r)| Point3::new(c as f64 * self.square_mm, r as f64 * self.square_mm, 0.0))
+            .collect()
+    }
+
+    /// Board reflectance at board coordinates (x, y) mm, or `None` off the board.
+    fn albedo(&self, x: f64, y: f64) -> Option<f32> {
+        let s = self.square_mm;
+        let (x0, y0) = (-s - self.margin_mm, -s - self.margin_mm);
+        let (x1, y1) = (
+            self.cols as f64 * s + self.margin_mm,
+            self.rows as f64 * s + self.margin_mm,
+        );
+        if x < x0 || y < y0 || x > x1 || y > y1 {
+            return None;
+        }
+        let (ix, iy) = (fast_floor(x / s), fast_floor(y / s));
+        let in_squares =
+            ix >= -1 && iy >= -1 && ix <= self.cols as i64 - 1 && iy <= self.rows as i64 - 1;
+        let black = in_squares && (ix + iy).rem_euclid(2) == 0;
+        Some(if black { 0.07 } else { 0.82 })
+    }
+}
+
+/// A chessboard at `board_to_world`, lit unevenly, before a cluttered wall.
+pub struct ChessboardScene {
+    board: Chessboard,
+    world_to_board: (Matrix3<f64>, Vector3<f64>),
+    seed: u64,
+}
+
+impl ChessboardScene {
+    /// The board placed at `board_to_world` (the world here is the left camera's
+    /// frame); `seed` varies the wall's clutter.
+    pub fn new(board: Chessboard, board_to_world: &Isometry3<f64>, seed: u64) -> Self {
+        let inv = board_to_world.inverse();
+        ChessboardScene {
+            board,
+            world_to_board: (
+                inv.rotation.to_rotation_matrix().into_inner(),
+                inv.translation.vector,
+            ),
+            seed,
+        }
+    }
+}
+
+impl Scene for ChessboardScene {
+    fn radiance(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> [f32; 3] {
+        let (r, t) = &self.world_to_board;
+        let (o, d) = (r * origin.coords + t, r * dir);
+        if d.z.abs() > 1e-12 {
+            let t = -o.z / d.z;
+            if t > 0.0 {
+                let p = o + d * t;
+                if let Some(a) = self.board.albedo(p.x, p.y) {
+                    // Light falling off across the board (uneven lighting).
+                    let light = 0.8
+                        + 0.2
+                            * (p.x / (self.board.cols as f64 * self.board.square_mm))
+                                .clamp(0.0, 1.0);
+                    let v = a * light as f32;
+                    return [v, v, v * 0.97];
+                }
+            }
+        }
+        // A wall 1.6 m away with blotchy clutter.
+        let t = (1600.0 - origin.z) / dir.z.max(1e-3);
+        let p = origin + dir * t;
+        let noise = ValueNoise::new(self.seed);
+        let v = 0.3 + 0.35 * noise.fractal(&p, 1.0 / 60.0, 2) as f32;
+        [v * 0.95, v, v * 1.05]
+    }
+}
+
+/// The phantom on a table (world plane z = 0), lit by a lamp from `light_dir`.
+pub struct PhantomScene {
+    /// The phantom.
+    pub shape: PhantomShape,
+    /// Pose of the phantom frame in the world (base on z = 0).
+    pub phantom_to_world: Isometry3<f64>,
+    /// Unit direction towards the lamp, world frame.
+    pub light_dir: Vector3<f64>,
+    /// Seed of the skin and cloth textures.
+    pub seed: u64,
+}
+
+/// Skin base colour (linear RGB).
+const SKIN: [f32; 3] = [0.92, 0.72, 0.62];
+/// Marker face colour: a saturated green, far in hue from skin and cloth.
+pub const MARKER_GREEN: [f32; 3] = [0.10, 0.72, 0.20];
+const PLASTIC: [f32; 3] = [0.80, 0.80, 0.78];
+const CLOTH: [f32; 3] = [0.22, 0.25, 0.32];
+
+impl PhantomScene {
+    fn shade(&self, albedo: [f32; 3], texture: f64, normal: &Vector3<f64>) -> [f32; 3] {
+        let diffuse = normal.dot(&self.light_dir).max(0.0);
+        let light = (0.35 + 0.65 * diffuse) * texture;
+        albedo.map(|a| (a as f64 * light) as f32)
+    }
+}
+
+impl Scene for PhantomScene {
+    fn radiance(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> [f32; 3] {
+        let (o, d) = (
+            self.phantom_to_world.inverse_transform_point(origin),
+            self.phantom_to_world.inverse_transform_vector(dir),
+        );
+        let table_t = if dir.z < 0.0 {
+            -origin.z / dir.z
+        } else {
+            f64::INFINITY
+        };
+        let noise = ValueNoise::new(self.seed);
+        if let Some(hit) = self.shape.intersect(&o, &d, 1e-6).filter(|h| h.t < table_t) {
+            let p = o + d * hit.t;
+            let normal = self.phantom_to_world * hit.normal;
+            return match hit.surface {
+                Surface::Skin => {
+                    // Fine random texture: 0.5 mm to 2 mm features, strong contrast.
+                    let t = noise.fractal(&p, 1.0 / 1.6, 3);
+                    self.shade(SKIN, 0.55 + 0.6 * t, &normal)
+                }
+                Surface::MarkerFace(_) => self.shade(MARKER_GREEN, 1.0, &normal),
+                Surface::MarkerSide => self.shade(PLASTIC, 1.0, &normal),
+            };
+        }
+        if table_t.is_finite() {
+            let p = origin + dir * table_t;
+            let t = noise.fractal(&p, 1.0 / 3.0, 2);
+            return self.shade(CLOTH, 0.6 + 0.5 * t, &Vector3::z());
+        }
+        [0.05, 0.05, 0.06]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn board_colours_alternate_from_a_black_first_square() {
+        let b = Chessboard {
+            cols: 9,
+            rows: 6,
+            square_mm: 25.0,
+            margin_mm: 20.0,
+        };
+        assert_eq!(b.corners().len(), 54);
+        assert_eq!(b.corners()[10], Point3::new(25.0, 25.0, 0.0));
+        assert_eq!(b.albedo(-12.0, -12.0), Some(0.07));
+        assert_eq!(b.albedo(12.0, -12.0), Some(0.82));
+        assert_eq!(b.albedo(12.0, 12.0), Some(0.07));
+        // 10 x 7 squares: the last square (9, 6) is white, unlike the first, so
+        // the board has no 180-degree symmetry.
+        assert_eq!(b.albedo(9.0 * 25.0 - 12.0, 6.0 * 25.0 - 12.0), Some(0.82));
+        assert_eq!(b.albedo(-30.0, 0.0), Some(0.82), "margin");
+        assert_eq!(b.albedo(-50.0, 0.0), None);
+    }
+}

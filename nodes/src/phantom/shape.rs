@@ -1,0 +1,566 @@
+//! The phantom's solid geometry in its own frame (mm): a tilted half-ellipsoid
+//! dome standing on the plane z = 0, circular markers glued on the skin (each a
+//! plastic disc holding an MRI-bright gel core, its outer face coloured), and
+//! small internal lesions. Point classification (for the MRI) and ray casting
+//! (for the cameras) are exact on this description.
+
+use nalgebra::{Point3, Rotation3, Unit, Vector3};
+use rand::Rng;
+use serde::{Deserialize, Serialize};
+use std::sync::OnceLock;
+
+/// What a point of space is made of.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Material {
+    /// Air (or the plastic base plate under the dome).
+    Background,
+    /// Breast-like tissue.
+    Tissue,
+    /// A lesion inside the tissue.
+    Lesion,
+    /// Marker plastic (dark in MRI).
+    Plastic,
+    /// Marker gel core (petroleum jelly, bright in MRI).
+    Gel,
+}
+
+/// One marker: a disc of plastic on the skin with a gel core.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Marker {
+    /// Marker number, 0-based.
+    pub id: u32,
+    /// Where the disc's axis meets the skin, phantom frame, mm.
+    pub skin_point_mm: [f64; 3],
+    /// Outward unit normal of the skin there (the disc's axis).
+    pub normal: [f64; 3],
+    /// Disc radius, mm.
+    pub radius_mm: f64,
+    /// How far the disc reaches below the skin point along -normal, mm.
+    pub below_skin_mm: f64,
+    /// Height of the outer (coloured) face above the skin point, mm.
+    pub height_mm: f64,
+    /// Gel core radius, mm.
+    pub gel_radius_mm: f64,
+    /// Gel core extent along the normal, mm above the skin point: [from, to].
+    pub gel_span_mm: [f64; 2],
+}
+
+impl Marker {
+    fn axis(&self) -> (Point3<f64>, Vector3<f64>) {
+        (Point3::from(self.skin_point_mm), Vector3::from(self.normal))
+    }
+
+    /// Centre of the gel core (the marker centre MRI sees), phantom frame, mm.
+    pub fn gel_center(&self) -> Point3<f64> {
+        let (s, n) = self.axis();
+        s + n * (0.5 * (self.gel_span_mm[0] + self.gel_span_mm[1]))
+    }
+
+    /// Centre of the coloured outer face (the marker centre cameras see), mm.
+    pub fn face_center(&self) -> Point3<f64> {
+        let (s, n) = self.axis();
+        s + n * self.height_mm
+    }
+
+    /// What the marker is made of at `p`, or `None` outside it.
+    pub fn material_at(&self, p: &Point3<f64>) -> Option<Material> {
+        let (s, n) = self.axis();
+        let d = p - s;
+        let h = d.dot(&n);
+        if h < -self.below_skin_mm || h > self.height_mm {
+            return None;
+        }
+        let radial2 = d.norm_squared() - h * h;
+        if radial2 > self.radius_mm * self.radius_mm {
+            return None;
+        }
+        let in_gel = h >= self.gel_span_mm[0]
+            && h <= self.gel_span_mm[1]
+            && radial2 <= self.gel_radius_mm * self.gel_radius_mm;
+        Some(if in_gel {
+            Material::Gel
+        } else {
+            Material::Plastic
+        })
+    }
+
+    /// Radius of a sphere around the skin point holding the whole marker.
+    fn bounding_radius(&self) -> f64 {
+        let reach = self.height_mm.max(self.below_skin_mm);
+        (reach * reach + self.radius_mm * self.radius_mm).sqrt()
+    }
+}
+
+/// A spherical lesion.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Lesion {
+    /// Lesion number, 0-based.
+    pub id: u32,
+    /// Centre, phantom frame, mm.
+    pub center_mm: [f64; 3],
+    /// Radius, mm.
+    pub radius_mm: f64,
+}
+
+/// The whole phantom, in its own frame (mm): base on z = 0, dome towards +z.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PhantomShape {
+    /// Centre of the ellipsoid whose upper part is the dome, mm (below z = 0).
+    pub ellipsoid_center_mm: [f64; 3],
+    /// Semi-axes of the ellipsoid along its own x, y, z, mm.
+    pub semi_axes_mm: [f64; 3],
+    /// Rotation of the ellipsoid about the phantom x axis (a forward droop), deg.
+    pub tilt_deg: f64,
+    /// The markers.
+    pub markers: Vec<Marker>,
+    /// The lesions.
+    pub lesions: Vec<Lesion>,
+    /// The ellipsoid's rotation, computed once (ray casting asks per sample).
+    #[serde(skip)]
+    rotation_cache: OnceLock<Rotation3<f64>>,
+}
+
+/// The geometry parameters a phantom is built from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ShapeParams {
+    /// Dome width at the base along x, mm.
+    pub width_mm: f64,
+    /// Dome depth at the base along y, mm.
+    pub depth_mm: f64,
+    /// Dome height, mm.
+    pub height_mm: f64,
+    /// Forward droop of the dome, deg.
+    pub droop_deg: f64,
+    /// Number of markers.
+    pub marker_count: usize,
+    /// Marker disc diameter, mm.
+    pub marker_diameter_mm: f64,
+    /// Marker height above the skin, mm.
+    pub marker_thickness_mm: f64,
+    /// Lesion centres, phantom frame, mm.
+    pub lesion_centers_mm: Vec<[f64; 3]>,
+    /// Lesion diameter, mm.
+    pub lesion_diameter_mm: f64,
+}
+
+impl Default for ShapeParams {
+    fn default() -> Self {
+        ShapeParams {
+            width_mm: 130.0,
+            depth_mm: 120.0,
+            height_mm: 60.0,
+            droop_deg: 8.0,
+            marker_count: 12,
+            marker_diameter_mm: 9.0,
+            marker_thickness_mm: 5.0,
+            lesion_centers_mm: vec![[12.0, -8.0, 22.0], [-18.0, 14.0, 16.0], [20.0, 16.0, 32.0]],
+            lesion_diameter_mm: 6.0,
+        }
+    }
+}
+
+/// A ray hit on the phantom.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Hit {
+    /// Distance along the (unit) ray, mm.
+    pub t: f64,
+    /// Outward unit normal at the hit.
+    pub normal: Vector3<f64>,
+    /// What was hit.
+    pub surface: Surface,
+}
+
+/// Which surface a ray hit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Surface {
+    /// The skin of the dome.
+    Skin,
+    /// The coloured outer face of marker `id`.
+    MarkerFace(u32),
+    /// The plastic side wall of a marker.
+    MarkerSide,
+}
+
+impl PhantomShape {
+    /// Builds the phantom: the ellipsoid is sized so its part above z = 0 has the
+    /// requested base width, depth and height; markers are laid out in two rings
+    /// with seeded jitter (so the layout has no symmetry).
+    pub fn build(p: &ShapeParams, rng: &mut impl Rng) -> Result<Self, String> {
+        if p.width_mm <= 0.0 || p.depth_mm <= 0.0 || p.height_mm <= 0.0 {
+            return Err("phantom sizes must be positive".into());
+        }
+        // The ellipsoid centre sits a quarter of the height below the base, so the
+        // skin meets the base at an angle, as a real breast phantom's does.
+        let below = 0.25 * p.height_mm;
+        let c = p.height_mm + below;
+        let base_scale = (1.0 - (below / c).powi(2)).sqrt();
+        let mut shape = PhantomShape {
+            ellipsoid_center_mm: [0.0, 0.0, -below],
+            semi_axes_mm: [
+                0.5 * p.width_mm / base_scale,
+                0.5 * p.depth_mm / base_scale,
+                c,
+            ],
+            tilt_deg: p.droop_deg,
+            markers: Vec::new(),
+            lesions: Vec::new(),
+            rotation_cache: OnceLock::new(),
+        };
+        shape.markers = shape.layout_markers(p, rng)?;
+        for (i, c) in p.lesion_centers_mm.iter().enumerate() {
+            let center = Point3::from(*c);
+            let r = 0.5 * p.lesion_diameter_mm;
+            if !shape.inside_dome(&center) || shape.surface_clearance(&center) < r + 3.0 {
+                return Err(format!(
+                    "lesion {i} at {c:?} mm is not at least 3 mm inside the dome"
+                ));
+            }
+            shape.lesions.push(Lesion {
+                id: i as u32,
+                center_mm: *c,
+                radius_mm: r,
+            });
+        }
+        Ok(shape)
+    }
+
+    /// Rotation of the ellipsoid's axes in the phantom frame.
+    pub fn rotation(&self) -> Rotation3<f64> {
+        *self.rotation_cache.get_or_init(|| {
+            Rotation3::from_axis_angle(&Vector3::x_axis(), self.tilt_deg.to_radians())
+        })
+    }
+
+    fn to_unit_sphere(&self, p: &Point3<f64>) -> Vector3<f64> {
+        let q = self.rotation().inverse() * (p - Point3::from(self.ellipsoid_center_mm));
+        q.component_div(&Vector3::from(self.semi_axes_mm))
+    }
+
+    /// Whether `p` is inside the dome (tissue, before markers and lesions).
+    pub fn inside_dome(&self, p: &Point3<f64>) -> bool {
+        p.z >= 0.0 && self.to_unit_sphere(p).norm_squared() <= 1.0
+    }
+
+    /// Outward unit normal of the ellipsoid at (or near) `p`.
+    pub fn skin_normal(&self, p: &Point3<f64>) -> Vector3<f64> {
+        let axes = Vector3::from(self.semi_axes_mm);
+        let q = self.rotation().inverse() * (p - Point3::from(self.ellipsoid_center_mm));
+        (self.rotation() * q.component_div(&axes.component_mul(&axes))).normalize()
+    }
+
+    /// What `p` is made of. Markers override tissue (their base is set into the
+    /// skin), lesions override tissue.
+    pub fn material_at(&self, p: &Point3<f64>) -> Material {
+        for m in &self.markers {
+            if (p - Point3::from(m.skin_point_mm)).norm_squared() <= m.bounding_radius().powi(2)
+                && let Some(material) = m.material_at(p)
+            {
+                return material;
+            }
+        }
+        if !self.inside_dome(p) {
+            return Material::Background;
+        }
+        for l in &self.lesions {
+            if (p - Point3::from(l.center_mm)).norm_squared() <= l.radius_mm * l.radius_mm {
+                return Material::Lesion;
+            }
+        }
+        Material::Tissue
+    }
+
+    /// Where the ray from `origin` (inside the dome) along unit `dir` leaves the
+    /// ellipsoid.
+    fn exit_point(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> Point3<f64> {
+        let (t_near, t_far) = self
+            .ellipsoid_roots(origin, dir)
+            .expect("origin inside the ellipsoid");
+        origin + dir * t_near.max(t_far)
+    }
+
+    /// Both ray parameters where the ray meets the ellipsoid, if it does.
+    fn ellipsoid_roots(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> Option<(f64, f64)> {
+        let axes = Vector3::from(self.semi_axes_mm);
+        let r_inv = self.rotation().inverse();
+        let o = (r_inv * (origin - Point3::from(self.ellipsoid_center_mm))).component_div(&axes);
+        let d = (r_inv * dir).component_div(&axes);
+        let (a, b, c) = (d.norm_squared(), 2.0 * o.dot(&d), o.norm_squared() - 1.0);
+        let disc = b * b - 4.0 * a * c;
+        if disc < 0.0 {
+            return None;
+        }
+        let sq = disc.sqrt();
+        // Numerically stable roots.
+        let q = -0.5 * (b + b.signum() * sq);
+        let (t1, t2) = if q == 0.0 { (0.0, 0.0) } else { (q / a, c / q) };
+        Some((t1.min(t2), t1.max(t2)))
+    }
+
+    /// The first surface hit by the ray from `origin` along unit `dir`, beyond
+    /// `t_min`. The base (z = 0) is not a visible surface.
+    pub fn intersect(&self, origin: &Point3<f64>, dir: &Vector3<f64>, t_min: f64) -> Option<Hit> {
+        let mut best: Option<Hit> = None;
+        let mut consider = |hit: Hit| {
+            if hit.t > t_min && best.is_none_or(|b| hit.t < b.t) {
+                best = Some(hit);
+            }
+        };
+        if let Some((t1, _)) = self.ellipsoid_roots(origin, dir) {
+            let p = origin + dir * t1;
+            if p.z >= 0.0 {
+                consider(Hit {
+                    t: t1,
+                    normal: self.skin_normal(&p),
+                    surface: Surface::Skin,
+                });
+            }
+        }
+        for m in &self.markers {
+            if let Some(hit) = intersect_marker(m, origin, dir, t_min) {
+                consider(hit);
+            }
+        }
+        best
+    }
+
+    /// Distance (mm) from an inside point to the nearest point of the dome's
+    /// skin, by sampling directions (an upper bound, exact to ~0.1 mm; used only
+    /// to check lesion placement).
+    fn surface_clearance(&self, p: &Point3<f64>) -> f64 {
+        let mut best = p.z;
+        for i in 0..40 {
+            for j in 0..80 {
+                let theta = std::f64::consts::PI * (i as f64 + 0.5) / 40.0;
+                let phi = 2.0 * std::f64::consts::PI * j as f64 / 80.0;
+                let d = Vector3::new(
+                    theta.sin() * phi.cos(),
+                    theta.sin() * phi.sin(),
+                    theta.cos(),
+                );
+                if let Some((_, t_far)) = self.ellipsoid_roots(p, &d) {
+                    best = best.min(t_far);
+                }
+            }
+        }
+        best
+    }
+
+    fn layout_markers(&self, p: &ShapeParams, rng: &mut impl Rng) -> Result<Vec<Marker>, String> {
+        let n = p.marker_count;
+        if n == 0 {
+            return Ok(Vec::new());
+        }
+        let radius = 0.5 * p.marker_diameter_mm;
+        let lower_ring = n.div_ceil(3) * 2;
+        let origin = Point3::new(0.0, 0.0, 0.15 * p.height_mm);
+        for _attempt in 0..200 {
+            let mut markers = Vec::with_capacity(n);
+            for i in 0..n {
+                let (ring_i, ring_n, elevation_deg, phase_deg) = if i < lower_ring {
+                    (i, lower_ring, 22.0, 0.0)
+                } else {
+                    (i - lower_ring, n - lower_ring, 52.0, 20.0)
+                };
+                let azimuth = (phase_deg
+                    + 360.0 * ring_i as f64 / ring_n as f64
+                    + rng.random_range(-12.0..12.0))
+                .to_radians();
+                let elevation = (elevation_deg + rng.random_range(-5.0..5.0f64)).to_radians();
+                let dir = Vector3::new(
+                    elevation.cos() * azimuth.cos(),
+                    elevation.cos() * azimuth.sin(),
+                    elevation.sin(),
+                );
+                let skin = self.exit_point(&origin, &dir);
+                let normal = self.skin_normal(&skin);
+                let thickness = p.marker_thickness_mm;
+                markers.push(Marker {
+                    id: i as u32,
+                    skin_point_mm: skin.into(),
+                    normal: normal.into(),
+                    radius_mm: radius,
+                    below_skin_mm: 1.0,
+                    height_mm: thickness,
+                    gel_radius_mm: (radius - 1.5).max(0.5 * radius),
+                    gel_span_mm: [0.4 * thickness, 0.8 * thickness],
+                });
+            }
+            if markers_apart(&markers, radius) {
+                return Ok(markers);
+            }
+        }
+        Err(format!(
+            "cannot place {n} markers of {} mm apart on this dome; use fewer or smaller markers",
+            p.marker_diameter_mm
+        ))
+    }
+}
+
+/// Markers must keep clear of each other (a gap of at least 6 mm between discs).
+/// The seeded jitter of the layout breaks every symmetry, so correspondence
+/// search has one answer.
+fn markers_apart(markers: &[Marker], radius: f64) -> bool {
+    let centers: Vec<Point3<f64>> = markers.iter().map(|m| m.face_center()).collect();
+    (0..centers.len()).all(|i| {
+        (i + 1..centers.len()).all(|j| (centers[i] - centers[j]).norm() >= 2.0 * radius + 6.0)
+    })
+}
+
+fn intersect_marker(
+    m: &Marker,
+    origin: &Point3<f64>,
+    dir: &Vector3<f64>,
+    t_min: f64,
+) -> Option<Hit> {
+    let (s, n) = m.axis();
+    let w = origin - s;
+    // Cull by the bounding sphere.
+    let b_half = w.dot(dir);
+    let c_sphere = w.norm_squared() - m.bounding_radius().powi(2);
+    if c_sphere > 0.0 && (b_half > 0.0 || b_half * b_half < c_sphere) {
+        return None;
+    }
+    let (wn, dn) = (w.dot(&n), dir.dot(&n));
+    let w_perp = w - n * wn;
+    let d_perp = dir - n * dn;
+    let mut best: Option<Hit> = None;
+    let a = d_perp.norm_squared();
+    if a > 1e-15 {
+        let b = 2.0 * w_perp.dot(&d_perp);
+        let c = w_perp.norm_squared() - m.radius_mm * m.radius_mm;
+        let disc = b * b - 4.0 * a * c;
+        if disc >= 0.0 {
+            let sq = disc.sqrt();
+            for t in [(-b - sq) / (2.0 * a), (-b + sq) / (2.0 * a)] {
+                let h = wn + t * dn;
+                if t > t_min && h >= -m.below_skin_mm && h <= m.height_mm {
+                    let normal = Unit::new_normalize(w_perp + d_perp * t).into_inner();
+                    best = Some(Hit {
+                        t,
+                        normal,
+                        surface: Surface::MarkerSide,
+                    });
+                    break;
+                }
+            }
+        }
+    }
+    if dn.abs() > 1e-15 {
+        let t = (m.height_mm - wn) / dn;
+        let radial = w_perp + d_perp * t;
+        if t > t_min
+            && radial.norm_squared() <= m.radius_mm * m.radius_mm
+            && best.is_none_or(|b| t < b.t)
+        {
+            best = Some(Hit {
+                t,
+                normal: n,
+                surface: Surface::MarkerFace(m.id),
+            });
+        }
+    }
+    best
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    fn phantom() -> PhantomShape {
+        PhantomShape::build(
+            &ShapeParams::default(),
+            &mut rand_chacha::ChaCha8Rng::seed_from_u64(1),
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn dome_has_the_requested_size() {
+        let s = phantom();
+        let p = ShapeParams::default();
+        // Highest point: straight up from the middle (the tilt lowers it a little).
+        let top = s
+            .intersect(&Point3::new(0.0, 0.0, 500.0), &-Vector3::z(), 0.0)
+            .unwrap();
+        let height = 500.0 - top.t;
+        assert!(
+            (height - p.height_mm).abs() < 0.02 * p.height_mm,
+            "{height}"
+        );
+        // Width at the base, along x (the tilt is about x, so this is exact).
+        let side = s
+            .intersect(&Point3::new(-500.0, 0.0, 0.001), &Vector3::x(), 0.0)
+            .unwrap();
+        assert!(
+            (2.0 * (500.0 - side.t) - p.width_mm).abs() < 0.5,
+            "{}",
+            side.t
+        );
+        assert!(s.inside_dome(&Point3::new(0.0, 0.0, 10.0)));
+        assert!(!s.inside_dome(&Point3::new(0.0, 0.0, -1.0)));
+        assert!(!s.inside_dome(&Point3::new(0.0, 0.0, 80.0)));
+    }
+
+    #[test]
+    fn markers_sit_on_the_skin_with_gel_inside() {
+        let s = phantom();
+        assert_eq!(s.markers.len(), 12);
+        for m in &s.markers {
+            let skin = Point3::from(m.skin_point_mm);
+            assert!(s.to_unit_sphere(&skin).norm() - 1.0 < 1e-9);
+            assert_eq!(s.material_at(&m.gel_center()), Material::Gel);
+            let n = Vector3::from(m.normal);
+            // Plastic between skin and gel keeps the gel apart from tissue.
+            assert_eq!(s.material_at(&(skin + n * 0.5)), Material::Plastic);
+            assert_eq!(s.material_at(&(skin - n * 2.0)), Material::Tissue);
+            assert_eq!(
+                s.material_at(&(m.face_center() + n * 0.1)),
+                Material::Background
+            );
+            // A ray straight down the axis hits the coloured face at its centre.
+            let origin = m.face_center() + n * 100.0;
+            let hit = s.intersect(&origin, &-n, 0.0).unwrap();
+            assert_eq!(hit.surface, Surface::MarkerFace(m.id));
+            assert!((hit.t - 100.0).abs() < 1e-9);
+        }
+        for l in &s.lesions {
+            assert_eq!(s.material_at(&Point3::from(l.center_mm)), Material::Lesion);
+        }
+    }
+
+    #[test]
+    fn rays_hit_the_skin_where_the_ellipsoid_is() {
+        let s = phantom();
+        let origin = Point3::new(30.0, -200.0, 150.0);
+        let dir = (Point3::new(10.0, 0.0, 20.0) - origin).normalize();
+        let hit = s.intersect(&origin, &dir, 0.0).unwrap();
+        let p = origin + dir * hit.t;
+        assert!((s.to_unit_sphere(&p).norm() - 1.0).abs() < 1e-9);
+        assert!(hit.normal.dot(&dir) < 0.0, "normal faces the camera");
+        assert!(s.intersect(&origin, &-dir, 0.0).is_none());
+    }
+
+    #[test]
+    fn bad_geometry_is_an_error() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+        let p = ShapeParams {
+            lesion_centers_mm: vec![[0.0, 0.0, 200.0]],
+            ..ShapeParams::default()
+        };
+        assert!(
+            PhantomShape::build(&p, &mut rng)
+                .unwrap_err()
+                .contains("lesion 0")
+        );
+        let p = ShapeParams {
+            marker_count: 80,
+            ..ShapeParams::default()
+        };
+        assert!(
+            PhantomShape::build(&p, &mut rng)
+                .unwrap_err()
+                .contains("80 markers")
+        );
+    }
+}

@@ -317,3 +317,86 @@ fn every_command_has_help() {
         );
     }
 }
+
+#[test]
+fn phantom_command_writes_the_documented_layout() {
+    let t = tempfile::tempdir().unwrap();
+    let o = fusegraph(
+        &["phantom", "--out", "ph", "--size", "small", "--seed", "3"],
+        t.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let dir = t.path().join("ph");
+    let truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("ground_truth.json")).unwrap())
+            .unwrap();
+    assert_eq!(truth["schema"], "fusegraph-phantom/1");
+    assert_eq!(truth["seed"], 3);
+    assert_eq!(truth["markers"].as_array().unwrap().len(), 12);
+    let count = |sub: &str| std::fs::read_dir(dir.join(sub)).unwrap().count();
+    assert_eq!(
+        count("mri"),
+        truth["mri"]["files"].as_u64().unwrap() as usize
+    );
+    assert_eq!(
+        count("calib"),
+        2 * truth["calibration"].as_array().unwrap().len()
+    );
+    assert_eq!(count("views"), 2 * truth["views"].as_array().unwrap().len());
+    for pair in truth["calibration"].as_array().unwrap() {
+        assert!(dir.join(pair["left"].as_str().unwrap()).exists());
+    }
+    let bad = fusegraph(&["phantom", "--out", "x", "--size", "huge"], t.path());
+    assert_eq!(bad.status.code(), Some(2));
+}
+
+#[test]
+fn phantom_node_output_is_content_addressed_in_the_cache() {
+    let t = tempfile::tempdir().unwrap();
+    let graph = r#"
+[node.phantom]
+op = "phantom.generate"
+size = "small"
+calibration_pairs = 3
+views = 1
+
+[node.mri]
+op = "dicom.load_series"
+in.dir = "phantom.mri_dir"
+
+[node.camera]
+op = "phantom.camera_surface"
+in.truth = "phantom.truth"
+"#;
+    std::fs::write(t.path().join("p.toml"), graph).unwrap();
+    let o = fusegraph(&["run", "p.toml"], t.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r = report(&t.path().join("out/p"));
+    let key = r["nodes"]["phantom"]["key"].as_str().unwrap().to_string();
+    let files = t.path().join(".fusegraph/cache/v1/files").join(&key);
+    assert!(
+        files.join("ground_truth.json").exists(),
+        "{}",
+        files.display()
+    );
+    assert!(files.join("mri").read_dir().unwrap().count() > 50);
+    assert!(r["metrics"]["mri.slices"].as_f64().unwrap() > 50.0);
+    assert!(r["metrics"]["camera.points"].as_f64().unwrap() > 1000.0);
+    let o = fusegraph(&["run", "p.toml"], t.path());
+    assert!(o.status.success());
+    let r = report(&t.path().join("out/p"));
+    for id in ["phantom", "mri", "camera"] {
+        assert_eq!(status(&r, id), "cached", "{id}");
+    }
+    // A bad parameter is caught before anything runs, naming node and key.
+    let o = fusegraph(
+        &["run", "p.toml", "--set", "phantom.size=\"huge\""],
+        t.path(),
+    );
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("node `phantom`, key `size`"),
+        "{}",
+        stderr(&o)
+    );
+}

@@ -107,7 +107,7 @@ static TEMP_COUNTER: AtomicU64 = AtomicU64::new(0);
 impl DiskCache {
     /// A cache rooted at `dir` (created if missing).
     pub fn open(dir: &Path) -> io::Result<DiskCache> {
-        let dir = dir.join(format!("v{FORMAT_VERSION}"));
+        let dir = std::path::absolute(dir)?.join(format!("v{FORMAT_VERSION}"));
         std::fs::create_dir_all(&dir).map_err(|e| {
             io::Error::new(e.kind(), format!("cache folder {}: {e}", dir.display()))
         })?;

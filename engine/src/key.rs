@@ -109,6 +109,9 @@ fn put_param(h: &mut blake3::Hasher, value: &ParamValue) -> std::io::Result<()> 
             h.update(b"s");
             put_str(h, s);
         }
+        ParamValue::Path(p) if p.as_os_str().is_empty() => {
+            h.update(b"p-none");
+        }
         ParamValue::Path(p) => {
             h.update(b"p");
             h.update(hash_path(p)?.as_bytes());

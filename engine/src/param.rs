@@ -205,6 +205,18 @@ impl ParamSpec {
         Self::new(name, ParamKind::Path, None, "", doc)
     }
 
+    /// A path that may be left out (its default is the empty path, "not given";
+    /// see [`Params::optional_path`]).
+    pub fn optional_path(name: &str, doc: &str) -> Self {
+        Self::new(
+            name,
+            ParamKind::Path,
+            Some(ParamValue::Path(PathBuf::new())),
+            "",
+            doc,
+        )
+    }
+
     /// A list of numbers with a default.
     pub fn float_list(name: &str, default: &[f64], unit: &str, doc: &str) -> Self {
         Self::new(
@@ -410,6 +422,17 @@ impl Params {
         /// A list-of-strings parameter.
         string_list, StringList, Vec<String>
     );
+
+    /// A path parameter declared with [`ParamSpec::optional_path`]: `None` when
+    /// not given.
+    pub fn optional_path(&self, name: &str) -> Result<Option<PathBuf>, ParamError> {
+        let p = self.path(name)?;
+        Ok(if p.as_os_str().is_empty() {
+            None
+        } else {
+            Some(p)
+        })
+    }
 
     /// A non-negative integer parameter as `usize`.
     pub fn count(&self, name: &str) -> Result<usize, ParamError> {

@@ -275,7 +275,7 @@ impl<'a> Executor<'a> {
     }
 
     fn failure(&self, id: &str, report: NodeReport) -> Slot {
-        tracing::error!(node = %id, "failed: {}", report.error.as_deref().unwrap_or(""));
+        tracing::info!(node = %id, "failed: {}", report.error.as_deref().unwrap_or(""));
         self.progress.println(format!(
             "node `{id}` failed: {}",
             report.error.as_deref().unwrap_or("")

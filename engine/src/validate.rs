@@ -130,6 +130,7 @@ pub fn validate(doc: &GraphDoc, registry: &Registry) -> Result<ValidGraph, Graph
         }
         for p in spec.params.iter().filter(|p| p.kind == ParamKind::Path) {
             if let Some(ParamValue::Path(path)) = params.0.get(&p.name)
+                && !path.as_os_str().is_empty()
                 && !path.exists()
             {
                 errors.push(

@@ -22,6 +22,9 @@ pub struct WorkDir {
 impl WorkDir {
     /// The folder for key `key_hex` under `files_root` (not created yet).
     pub fn new(files_root: &Path, key_hex: &str) -> Self {
+        // Absolute, because `Path` values are absolute and are matched against it.
+        let files_root =
+            std::path::absolute(files_root).unwrap_or_else(|_| files_root.to_path_buf());
         let temp = files_root.join(format!(
             ".tmp-{key_hex}-{}-{}",
             std::process::id(),

@@ -2,7 +2,9 @@
 //! holds its algorithms as plain functions on plain types, plus thin op adapters
 //! that unpack values, call them and report metrics.
 
+pub mod calib;
 pub mod camera;
+pub mod dicom;
 pub mod io;
 pub mod math;
 pub mod phantom;
@@ -12,6 +14,7 @@ use fusegraph_engine::registry::RegisterError;
 
 /// Registers every built-in node type.
 pub fn register_all(registry: &mut Registry) -> Result<(), RegisterError> {
+    dicom::register(registry)?;
     io::register(registry)?;
     math::register(registry)?;
     phantom::register(registry)?;

@@ -43,8 +43,7 @@ impl Chessboard {
             return None;
         }
         let (ix, iy) = (fast_floor(x / s), fast_floor(y / s));
-        let in_squares =
-            ix >= -1 && iy >= -1 && ix <= self.cols as i64 - 1 && iy <= self.rows as i64 - 1;
+        let in_squares = ix >= -1 && iy >= -1 && ix < self.cols as i64 && iy < self.rows as i64;
         let black = in_squares && (ix + iy).rem_euclid(2) == 0;
         Some(if black { 0.07 } else { 0.82 })
     }

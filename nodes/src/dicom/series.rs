@@ -1,0 +1,418 @@
+//! Frames -> one volume: choosing the series, checking that the frames form a
+//! regular grid (one orientation, one size, evenly spaced along the normal), and
+//! building the voxel -> patient affine.
+
+use super::frames::{Frame, looks_like_dicom, read_frames};
+use fusegraph_engine::value::Grid;
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// Why frames do not make one volume.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SeriesError {
+    /// A file cannot be read or decoded (the message names it).
+    #[error("{0}")]
+    File(String),
+    /// No DICOM file was found.
+    #[error("{0}: no DICOM files found")]
+    Empty(PathBuf),
+    /// Several series and no choice.
+    #[error("{dir}: holds {count} series; choose one with series_uid: {list}")]
+    SeveralSeries {
+        /// The folder.
+        dir: PathBuf,
+        /// How many.
+        count: usize,
+        /// UID, description and file count of each.
+        list: String,
+    },
+    /// The requested series is not there.
+    #[error("{dir}: no series with UID {uid}; it holds: {list}")]
+    NoSuchSeries {
+        /// The folder.
+        dir: PathBuf,
+        /// The requested UID.
+        uid: String,
+        /// What is there.
+        list: String,
+    },
+    /// Frames are not parallel.
+    #[error("slices have different orientations (a localiser or mixed series?): {0}")]
+    MixedOrientation(String),
+    /// Frames are unevenly spaced, missing or repeated.
+    #[error("slices are not evenly spaced along the normal: {0}")]
+    Spacing(String),
+    /// Frames differ in size or pixel spacing, or are sheared.
+    #[error("slices do not form one grid: {0}")]
+    Grid(String),
+}
+
+/// A volume read from a series.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LoadedSeries {
+    /// Geometry: voxel (column i, row j, slice k) -> patient LPS mm.
+    pub grid: Grid,
+    /// Rescaled voxel values in [`Grid::index`] order.
+    pub voxels: Vec<f32>,
+    /// SeriesInstanceUID.
+    pub series_uid: String,
+    /// Number of files read.
+    pub files: usize,
+    /// Things worth knowing that did not stop the load.
+    pub warnings: Vec<String>,
+}
+
+fn describe(groups: &BTreeMap<String, Vec<Frame>>) -> String {
+    groups
+        .iter()
+        .map(|(uid, frames)| {
+            let desc = &frames[0].series_description;
+            let desc = if desc.is_empty() {
+                String::new()
+            } else {
+                format!(" \"{desc}\"")
+            };
+            let files: std::collections::BTreeSet<_> = frames.iter().map(|f| &f.file).collect();
+            format!(
+                "{}{desc} ({} files)",
+                if uid.is_empty() { "(no UID)" } else { uid },
+                files.len()
+            )
+        })
+        .collect::<Vec<_>>()
+        .join("; ")
+}
+
+/// Reads a folder of slices (or one single- or multi-frame file) as a volume.
+/// Files without the DICOM preamble are skipped (with a warning); a DICOM file
+/// that fails to parse or decode is an error naming it.
+pub fn load_series(path: &Path, series_uid: Option<&str>) -> Result<LoadedSeries, SeriesError> {
+    let mut warnings = Vec::new();
+    let files: Vec<PathBuf> = if path.is_dir() {
+        let mut files = Vec::new();
+        collect_files(path, &mut files)
+            .map_err(|e| SeriesError::File(format!("{}: {e}", path.display())))?;
+        files.sort();
+        let (dicom, other): (Vec<_>, Vec<_>) = files.into_iter().partition(|f| looks_like_dicom(f));
+        if !other.is_empty() {
+            warnings.push(format!(
+                "skipped {} files that are not DICOM, e.g. {}",
+                other.len(),
+                other[0].display()
+            ));
+        }
+        dicom
+    } else {
+        vec![path.to_path_buf()]
+    };
+    if files.is_empty() {
+        return Err(SeriesError::Empty(path.to_path_buf()));
+    }
+    let per_file: Vec<Vec<Frame>> = files
+        .par_iter()
+        .map(|f| read_frames(f))
+        .collect::<Result<_, _>>()
+        .map_err(SeriesError::File)?;
+    let mut groups: BTreeMap<String, Vec<Frame>> = BTreeMap::new();
+    for frame in per_file.into_iter().flatten() {
+        groups
+            .entry(frame.series_uid.clone())
+            .or_default()
+            .push(frame);
+    }
+    let frames = match series_uid {
+        Some(uid) => groups
+            .remove(uid)
+            .ok_or_else(|| SeriesError::NoSuchSeries {
+                dir: path.to_path_buf(),
+                uid: uid.to_string(),
+                list: describe(&groups),
+            })?,
+        None if groups.len() > 1 => {
+            return Err(SeriesError::SeveralSeries {
+                dir: path.to_path_buf(),
+                count: groups.len(),
+                list: describe(&groups),
+            });
+        }
+        None => groups.into_values().next().expect("one group"),
+    };
+    let uid = frames[0].series_uid.clone();
+    let file_count = frames
+        .iter()
+        .map(|f| &f.file)
+        .collect::<std::collections::BTreeSet<_>>()
+        .len();
+    let (grid, voxels, mut more) = assemble(frames)?;
+    warnings.append(&mut more);
+    Ok(LoadedSeries {
+        grid,
+        voxels,
+        series_uid: uid,
+        files: file_count,
+        warnings,
+    })
+}
+
+fn collect_files(dir: &Path, out: &mut Vec<PathBuf>) -> std::io::Result<()> {
+    for entry in std::fs::read_dir(dir)? {
+        let path = entry?.path();
+        let hidden = path
+            .file_name()
+            .is_some_and(|n| n.to_string_lossy().starts_with('.'));
+        if hidden {
+            continue;
+        }
+        if path.is_dir() {
+            collect_files(&path, out)?;
+        } else {
+            out.push(path);
+        }
+    }
+    Ok(())
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn fmt3(v: &[f64]) -> String {
+    let parts: Vec<String> = v.iter().map(|x| format!("{x:.4}")).collect();
+    format!("[{}]", parts.join(", "))
+}
+
+/// Checks that `frames` (one series) form a regular grid and stacks them in order
+/// along the slice normal. Returns the grid, voxels and warnings.
+pub fn assemble(mut frames: Vec<Frame>) -> Result<(Grid, Vec<f32>, Vec<String>), SeriesError> {
+    let mut warnings = Vec::new();
+    let first = frames
+        .first()
+        .ok_or_else(|| SeriesError::Grid("no frames".into()))?
+        .clone();
+    let name = |f: &Frame| {
+        if f.frame == 0 {
+            f.file.display().to_string()
+        } else {
+            format!("{} frame {}", f.file.display(), f.frame)
+        }
+    };
+    // Orientation: every frame parallel to the first.
+    let mut orientations: Vec<(&[f64; 6], String)> = Vec::new();
+    for f in &frames {
+        if !orientations.iter().any(|(o, _)| {
+            o.iter()
+                .zip(&f.orientation)
+                .all(|(a, b)| (a - b).abs() < 1e-4)
+        }) {
+            orientations.push((&f.orientation, name(f)));
+        }
+    }
+    if orientations.len() > 1 {
+        let list: Vec<String> = orientations
+            .iter()
+            .take(4)
+            .map(|(o, file)| format!("{} in {file}", fmt3(&o[..])))
+            .collect();
+        let more = if orientations.len() > 4 {
+            format!(" and {} more", orientations.len() - 4)
+        } else {
+            String::new()
+        };
+        return Err(SeriesError::MixedOrientation(format!(
+            "{} different ImageOrientationPatient values: {}{more}",
+            orientations.len(),
+            list.join("; ")
+        )));
+    }
+    if let Some(f) = frames.iter().find(|f| {
+        f.rows != first.rows
+            || f.cols != first.cols
+            || (0..2).any(|a| (f.pixel_spacing[a] - first.pixel_spacing[a]).abs() > 1e-4)
+    }) {
+        return Err(SeriesError::Grid(format!(
+            "{} is {} x {} with pixel spacing {:?}, but {} is {} x {} with {:?}",
+            name(f),
+            f.rows,
+            f.cols,
+            f.pixel_spacing,
+            name(&first),
+            first.rows,
+            first.cols,
+            first.pixel_spacing
+        )));
+    }
+    let row_dir = [
+        first.orientation[0],
+        first.orientation[1],
+        first.orientation[2],
+    ];
+    let col_dir = [
+        first.orientation[3],
+        first.orientation[4],
+        first.orientation[5],
+    ];
+    let normal = cross(row_dir, col_dir);
+    let norm = dot(normal, normal).sqrt();
+    if (norm - 1.0).abs() > 1e-3 || dot(row_dir, col_dir).abs() > 1e-3 {
+        return Err(SeriesError::Grid(format!(
+            "ImageOrientationPatient {} is not two orthogonal unit vectors",
+            fmt3(&first.orientation)
+        )));
+    }
+    let normal = normal.map(|x| x / norm);
+    frames.sort_by(|a, b| dot(a.position, normal).total_cmp(&dot(b.position, normal)));
+    let depths: Vec<f64> = frames.iter().map(|f| dot(f.position, normal)).collect();
+    let n = frames.len();
+    let slice_vector: [f64; 3] = if n == 1 {
+        let t = first.slice_thickness.unwrap_or_else(|| {
+            warnings.push("one slice and no SliceThickness: slice spacing set to 1 mm".into());
+            1.0
+        });
+        normal.map(|x| x * t)
+    } else {
+        let gaps: Vec<f64> = depths.windows(2).map(|w| w[1] - w[0]).collect();
+        let mut sorted = gaps.clone();
+        sorted.sort_by(f64::total_cmp);
+        let median = sorted[sorted.len() / 2];
+        if let Some(i) = gaps.iter().position(|&g| g < 1e-3) {
+            return Err(SeriesError::Spacing(format!(
+                "{} and {} are both at {:.4} mm along the normal (a repeated slice?)",
+                name(&frames[i]),
+                name(&frames[i + 1]),
+                depths[i]
+            )));
+        }
+        let tolerance = (0.01 * median).max(1e-3);
+        if gaps.iter().any(|g| (g - median).abs() > tolerance) {
+            let positions: Vec<String> = depths.iter().map(|d| format!("{d:.3}")).collect();
+            let gap_list: Vec<String> = gaps.iter().map(|g| format!("{g:.3}")).collect();
+            return Err(SeriesError::Spacing(format!(
+                "positions {} mm, gaps {} mm (a missing slice, or a different series?)",
+                positions.join(", "),
+                gap_list.join(", ")
+            )));
+        }
+        let (p0, pn) = (frames[0].position, frames[n - 1].position);
+        let step = [0, 1, 2].map(|a| (pn[a] - p0[a]) / (n - 1) as f64);
+        // Every position must lie on the line from the first along `step`.
+        for (k, f) in frames.iter().enumerate() {
+            let expected = [0, 1, 2].map(|a| p0[a] + step[a] * k as f64);
+            let off = (0..3)
+                .map(|a| (f.position[a] - expected[a]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            if off > 0.01 * median.max(first.pixel_spacing[0]) {
+                return Err(SeriesError::Grid(format!(
+                    "{} is {off:.3} mm off the line through the other slice positions (sheared or gantry-tilted stack)",
+                    name(f)
+                )));
+            }
+        }
+        if let Some(t) = first
+            .slice_thickness
+            .filter(|t| (t - median).abs() > 0.01 * median)
+        {
+            warnings.push(format!("slice spacing {median:.4} mm differs from SliceThickness {t:.4} mm (gaps or overlap)"));
+        }
+        step
+    };
+    let (ds_row, ds_col) = (first.pixel_spacing[0], first.pixel_spacing[1]);
+    let mut m = [[0.0; 4]; 4];
+    for r in 0..3 {
+        m[r][0] = row_dir[r] * ds_col;
+        m[r][1] = col_dir[r] * ds_row;
+        m[r][2] = slice_vector[r];
+        m[r][3] = frames[0].position[r];
+    }
+    m[3][3] = 1.0;
+    let grid = Grid {
+        dims: [first.cols, first.rows, n],
+        voxel_to_patient: m,
+    };
+    let mut voxels = Vec::with_capacity(first.cols * first.rows * n);
+    for f in &frames {
+        voxels.extend_from_slice(&f.pixels);
+    }
+    Ok((grid, voxels, warnings))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(z: f64, orientation: [f64; 6]) -> Frame {
+        Frame {
+            file: PathBuf::from(format!("slice_{z}.dcm")),
+            frame: 0,
+            series_uid: "1.2.3".into(),
+            series_description: String::new(),
+            rows: 2,
+            cols: 3,
+            position: [10.0, 20.0, z],
+            orientation,
+            pixel_spacing: [0.5, 0.25],
+            slice_thickness: Some(2.0),
+            pixels: vec![z as f32; 6],
+        }
+    }
+
+    const AXIAL: [f64; 6] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+
+    #[test]
+    fn slices_are_ordered_by_position_along_the_normal() {
+        let frames = vec![frame(4.0, AXIAL), frame(0.0, AXIAL), frame(2.0, AXIAL)];
+        let (grid, voxels, warnings) = assemble(frames).unwrap();
+        assert_eq!(grid.dims, [3, 2, 3]);
+        assert_eq!(grid.spacing_mm(), [0.25, 0.5, 2.0]);
+        assert_eq!(grid.to_patient([2.0, 1.0, 2.0]), [10.5, 20.5, 4.0]);
+        assert_eq!(voxels[0], 0.0);
+        assert_eq!(voxels[6 * 2], 4.0);
+        assert!(warnings.is_empty());
+    }
+
+    #[test]
+    fn a_reversed_normal_still_gives_a_right_handed_stack() {
+        // Row direction -x: the normal points to -z; slices still go along it.
+        let flipped = [-1.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+        let (grid, _, _) = assemble(vec![frame(0.0, flipped), frame(2.0, flipped)]).unwrap();
+        // The normal is -z, so the first slice along it is the one at z = 2.
+        assert_eq!(grid.to_patient([0.0, 0.0, 0.0])[2], 2.0);
+        assert_eq!(grid.to_patient([0.0, 0.0, 1.0])[2], 0.0);
+    }
+
+    #[test]
+    fn gaps_repeats_and_mixed_orientations_are_errors() {
+        let err = assemble(vec![
+            frame(0.0, AXIAL),
+            frame(2.0, AXIAL),
+            frame(6.0, AXIAL),
+        ])
+        .unwrap_err();
+        assert!(
+            matches!(err, SeriesError::Spacing(_)) && err.to_string().contains("gaps 2.000, 4.000"),
+            "{err}"
+        );
+        let err = assemble(vec![frame(0.0, AXIAL), frame(0.0, AXIAL)]).unwrap_err();
+        assert!(err.to_string().contains("repeated slice"), "{err}");
+        let tilted = [1.0, 0.0, 0.0, 0.0, 0.8, 0.6];
+        let err = assemble(vec![frame(0.0, AXIAL), frame(2.0, tilted)]).unwrap_err();
+        assert!(matches!(err, SeriesError::MixedOrientation(_)), "{err}");
+        assert!(err.to_string().contains("slice_2.dcm"), "{err}");
+    }
+
+    #[test]
+    fn a_single_slice_takes_its_thickness() {
+        let (grid, _, _) = assemble(vec![frame(5.0, AXIAL)]).unwrap();
+        assert_eq!(grid.dims[2], 1);
+        assert_eq!(grid.spacing_mm()[2], 2.0);
+    }
+}

@@ -1,0 +1,192 @@
+//! The DICOM loader on real files (pydicom's test files, in tests/data/dicom;
+//! its README says what each should give).
+
+use fusegraph_nodes::dicom::{SeriesError, load_series};
+use std::path::PathBuf;
+
+fn data(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../tests/data/dicom")
+        .join(name)
+}
+
+fn close(a: f64, b: f64, tol: f64) -> bool {
+    (a - b).abs() <= tol
+}
+
+#[test]
+fn mr_small_loads_with_its_geometry() {
+    let s = load_series(&data("MR_small.dcm"), None).unwrap();
+    assert_eq!(s.grid.dims, [64, 64, 1]);
+    let sp = s.grid.spacing_mm();
+    assert!(
+        close(sp[0], 0.3125, 1e-9) && close(sp[1], 0.3125, 1e-9) && close(sp[2], 0.8, 1e-9),
+        "{sp:?}"
+    );
+    let origin = s.grid.to_patient([0.0, 0.0, 0.0]);
+    for (a, b) in origin.iter().zip([-83.9063, -91.2, 6.6406]) {
+        assert!(close(*a, b, 1e-4), "{origin:?}");
+    }
+    assert!(s.voxels.iter().any(|&v| v > 100.0));
+}
+
+#[test]
+fn every_decodable_transfer_syntax_gives_identical_voxels() {
+    let reference = load_series(&data("MR_small.dcm"), None).unwrap();
+    for name in [
+        "MR_small_implicit.dcm",
+        "MR_small_bigendian.dcm",
+        "MR_small_RLE.dcm",
+        "MR_small_jp2klossless.dcm",
+    ] {
+        let s = load_series(&data(name), None).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(s.grid, reference.grid, "{name}");
+        assert_eq!(s.voxels, reference.voxels, "{name}");
+    }
+}
+
+#[test]
+fn jpeg_ls_is_identical_or_a_clear_error_naming_the_syntax() {
+    let reference = load_series(&data("MR_small.dcm"), None).unwrap();
+    match load_series(&data("MR_small_jpeg_ls_lossless.dcm"), None) {
+        Ok(s) => assert_eq!(s.voxels, reference.voxels),
+        Err(e) => {
+            let msg = e.to_string();
+            assert!(msg.contains("MR_small_jpeg_ls_lossless.dcm"), "{msg}");
+            assert!(
+                msg.contains("1.2.840.10008.1.2.4.80") && msg.contains("JPEG-LS"),
+                "{msg}"
+            );
+        }
+    }
+}
+
+#[test]
+fn ct_small_has_the_rescale_applied() {
+    use dicom_dictionary_std::tags;
+    let s = load_series(&data("CT_small.dcm"), None).unwrap();
+    assert_eq!(s.grid.dims, [128, 128, 1]);
+    assert!(close(s.grid.spacing_mm()[0], 0.661468, 1e-6));
+    assert!(close(s.grid.spacing_mm()[2], 5.0, 1e-9));
+    // Compare with the raw stored values and the file's own rescale.
+    let obj = dicom_object::open_file(data("CT_small.dcm")).unwrap();
+    let slope = obj
+        .element(tags::RESCALE_SLOPE)
+        .unwrap()
+        .to_float64()
+        .unwrap();
+    let intercept = obj
+        .element(tags::RESCALE_INTERCEPT)
+        .unwrap()
+        .to_float64()
+        .unwrap();
+    assert!(
+        intercept != 0.0 || slope != 1.0,
+        "the file has a rescale to test"
+    );
+    let raw: Vec<i32> = {
+        use dicom_pixeldata::{ConvertOptions, ModalityLutOption, PixelDecoder};
+        let opts = ConvertOptions::new().with_modality_lut(ModalityLutOption::None);
+        obj.decode_pixel_data()
+            .unwrap()
+            .to_vec_with_options(&opts)
+            .unwrap()
+    };
+    for (i, (&v, &r)) in s.voxels.iter().zip(&raw).enumerate().step_by(97) {
+        assert!(
+            close(v as f64, r as f64 * slope + intercept, 1e-3),
+            "voxel {i}: {v} vs raw {r}"
+        );
+    }
+}
+
+#[test]
+fn ct5n_series_is_one_volume_sorted_by_position() {
+    let s = load_series(&data("series_CT5N_98892001"), None).unwrap();
+    assert_eq!(s.grid.dims, [16, 16, 5]);
+    assert_eq!(s.files, 5);
+    let sp = s.grid.spacing_mm();
+    assert!(
+        close(sp[0], 0.488281, 1e-6) && close(sp[1], 0.488281, 1e-6) && close(sp[2], 2.5, 1e-6),
+        "{sp:?}"
+    );
+    // Axial, normal +z: the first slice is the lowest (z = -1.2375), the last 8.7625.
+    assert!(close(s.grid.to_patient([0.0, 0.0, 0.0])[2], -1.2375, 1e-4));
+    assert!(close(s.grid.to_patient([0.0, 0.0, 4.0])[2], 8.7625, 1e-4));
+    let m = s.grid.voxel_to_patient;
+    assert!(
+        close(m[0][0], 0.488281, 1e-6)
+            && close(m[1][1], 0.488281, 1e-6)
+            && close(m[2][2], 2.5, 1e-6)
+    );
+}
+
+#[test]
+fn ct2_series_with_a_gap_is_refused() {
+    let err = load_series(&data("series_CT2_77654033"), None).unwrap_err();
+    assert!(matches!(err, SeriesError::Spacing(_)), "{err}");
+    let msg = err.to_string();
+    assert!(
+        msg.contains("not evenly spaced") && msg.contains("-99.480") && msg.contains("202.500"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn mr700_localiser_names_the_differing_orientations() {
+    let err = load_series(&data("series_MR700_98892003"), None).unwrap_err();
+    assert!(matches!(err, SeriesError::MixedOrientation(_)), "{err}");
+    let msg = err.to_string();
+    assert!(
+        msg.contains("7 different ImageOrientationPatient")
+            || msg.contains("different ImageOrientationPatient"),
+        "{msg}"
+    );
+    assert!(msg.contains("series_MR700_98892003/"), "names files: {msg}");
+}
+
+#[test]
+fn bad_inputs_get_clear_errors() {
+    let t = tempfile::tempdir().unwrap();
+    // A truncated DICOM file is named.
+    let bytes = std::fs::read(data("MR_small.dcm")).unwrap();
+    let cut = t.path().join("cut.dcm");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let msg = load_series(&cut, None).unwrap_err().to_string();
+    assert!(msg.contains("cut.dcm"), "{msg}");
+    // An empty folder, and a folder of non-DICOM files.
+    assert!(load_series(t.path().join("none").as_path(), None).is_err());
+    let empty = t.path().join("empty");
+    std::fs::create_dir(&empty).unwrap();
+    std::fs::write(empty.join("notes.txt"), "not an image").unwrap();
+    assert!(matches!(
+        load_series(&empty, None),
+        Err(SeriesError::Empty(_))
+    ));
+    // Two series in one folder: listed, and one can be chosen.
+    let two = t.path().join("two");
+    std::fs::create_dir(&two).unwrap();
+    for f in ["MR_small.dcm", "CT_small.dcm"] {
+        std::fs::copy(data(f), two.join(f)).unwrap();
+    }
+    let err = load_series(&two, None).unwrap_err();
+    assert!(
+        matches!(err, SeriesError::SeveralSeries { count: 2, .. }),
+        "{err}"
+    );
+    let uid = dicom_object::open_file(data("CT_small.dcm"))
+        .unwrap()
+        .element(dicom_dictionary_std::tags::SERIES_INSTANCE_UID)
+        .unwrap()
+        .to_str()
+        .unwrap()
+        .trim_end_matches('\0')
+        .to_string();
+    assert!(err.to_string().contains(&uid), "{err}");
+    let ct = load_series(&two, Some(&uid)).unwrap();
+    assert_eq!(ct.grid.dims, [128, 128, 1]);
+    assert!(matches!(
+        load_series(&two, Some("9.9.9")),
+        Err(SeriesError::NoSuchSeries { .. })
+    ));
+}

@@ -1,0 +1,415 @@
+//! The phantom generator against its own truth: the DICOM series read back by the
+//! project's loader, marker faces projecting onto their green blobs, chessboard
+//! corners projecting onto the rendered corners, the simulated camera surface,
+//! and determinism across thread counts.
+
+use fusegraph_nodes::calib::refine_corner;
+use fusegraph_nodes::camera::isometry_from_matrix;
+use fusegraph_nodes::dicom::load_series;
+use fusegraph_nodes::phantom::{
+    GroundTruth, PhantomConfig, PhantomSize, SurfaceSimParams, generate, simulate_camera_surface,
+};
+use nalgebra::{Isometry3, Point2, Point3, Vector3};
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+/// One phantom per test binary, regenerated on every run: `small` unless
+/// FUSEGRAPH_TEST_PHANTOM_SIZE=full asks for the accuracy-grade one.
+fn phantom() -> &'static (PathBuf, GroundTruth) {
+    static PHANTOM: OnceLock<(PathBuf, GroundTruth)> = OnceLock::new();
+    PHANTOM.get_or_init(|| {
+        let size = std::env::var("FUSEGRAPH_TEST_PHANTOM_SIZE").unwrap_or_else(|_| "small".into());
+        let size = PhantomSize::parse(&size).expect("FUSEGRAPH_TEST_PHANTOM_SIZE is small or full");
+        let dir =
+            Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("phantom-tests-{}", size.name()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let config = PhantomConfig {
+            size,
+            ..PhantomConfig::default()
+        };
+        let g = generate(&config, &dir).unwrap();
+        (dir, g.truth)
+    })
+}
+
+fn rgb(path: &Path) -> image::RgbImage {
+    image::open(path)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+        .to_rgb8()
+}
+
+#[test]
+fn dicom_series_round_trips_through_the_loader() {
+    let (dir, truth) = phantom();
+    let s = load_series(&dir.join("mri"), None).unwrap();
+    assert_eq!(s.files, truth.mri.files);
+    assert_eq!(s.grid.dims, truth.mri.dims);
+    assert_eq!(s.series_uid, truth.mri.series_uid);
+    for r in 0..4 {
+        for c in 0..4 {
+            let (a, b) = (
+                s.grid.voxel_to_patient[r][c],
+                truth.mri.voxel_to_patient[r][c],
+            );
+            assert!((a - b).abs() < 1e-5, "affine [{r}][{c}]: {a} vs {b}");
+        }
+    }
+    // Voxel values are the signal (rescale applied): gel bright at every marker
+    // centre, tissue at mid level, lesions darker, air near zero. Slices in the
+    // wrong order would put these in the wrong places.
+    let inverse = nalgebra::Matrix4::from_fn(|r, c| s.grid.voxel_to_patient[r][c])
+        .try_inverse()
+        .unwrap();
+    let value_at = |p: [f64; 3]| {
+        let v = inverse * nalgebra::Vector4::new(p[0], p[1], p[2], 1.0);
+        let [i, j, k] = [v.x, v.y, v.z].map(|x| x.round() as usize);
+        s.voxels[s.grid.index(i, j, k)]
+    };
+    // Along each marker's axis: tissue 6 mm below the gel, gel at its centre,
+    // air 6 mm above (partial volume blurs the 2 mm gel layer at 1.5 mm voxels).
+    let world_to_mri = isometry_from_matrix(&truth.mri_to_world).inverse();
+    for m in &truth.markers {
+        let n = world_to_mri * Vector3::from(m.normal_world);
+        let c = Point3::from(m.center_mri_mm);
+        let along = |d: f64| value_at((c + n * d).into());
+        let (below, centre, above) = (along(-6.0), along(0.0), along(6.0));
+        assert!(
+            below > 0.4 && centre > 0.3 && above < 0.15,
+            "marker {}: {below} {centre} {above}",
+            m.id
+        );
+    }
+    for l in &truth.lesions {
+        let v = value_at(l.center_mri_mm);
+        assert!((0.2..0.5).contains(&v), "lesion {} centre reads {v}", l.id);
+    }
+    assert!(s.voxels[0] < 0.15, "corner voxel is air: {}", s.voxels[0]);
+}
+
+#[test]
+fn dicom_files_carry_what_standard_readers_need() {
+    use dicom_dictionary_std::tags;
+    let (dir, _) = phantom();
+    let mut files: Vec<_> = std::fs::read_dir(dir.join("mri"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    files.sort();
+    let obj = dicom_object::open_file(&files[0]).unwrap();
+    assert_eq!(
+        obj.meta().transfer_syntax().trim_end_matches('\0'),
+        "1.2.840.10008.1.2.1"
+    );
+    assert_eq!(
+        obj.meta()
+            .media_storage_sop_class_uid()
+            .trim_end_matches('\0'),
+        "1.2.840.10008.5.1.4.1.1.4"
+    );
+    for tag in [
+        tags::SOP_INSTANCE_UID,
+        tags::STUDY_INSTANCE_UID,
+        tags::SERIES_INSTANCE_UID,
+        tags::FRAME_OF_REFERENCE_UID,
+        tags::MODALITY,
+        tags::ROWS,
+        tags::COLUMNS,
+        tags::PIXEL_SPACING,
+        tags::SLICE_THICKNESS,
+        tags::IMAGE_POSITION_PATIENT,
+        tags::IMAGE_ORIENTATION_PATIENT,
+        tags::INSTANCE_NUMBER,
+        tags::RESCALE_SLOPE,
+        tags::RESCALE_INTERCEPT,
+        tags::PHOTOMETRIC_INTERPRETATION,
+        tags::BITS_ALLOCATED,
+        tags::PIXEL_DATA,
+    ] {
+        assert!(obj.element_opt(tag).unwrap().is_some(), "missing {tag}");
+    }
+    // File names and instance numbers do not follow the slice positions.
+    let position = |f: &PathBuf| {
+        dicom_object::open_file(f)
+            .unwrap()
+            .element(tags::IMAGE_POSITION_PATIENT)
+            .unwrap()
+            .to_multi_float64()
+            .unwrap()[2]
+    };
+    let first: Vec<f64> = files[..6].iter().map(position).collect();
+    assert!(
+        !first.windows(2).all(|w| w[0] < w[1]) && !first.windows(2).all(|w| w[0] > w[1]),
+        "{first:?}"
+    );
+}
+
+/// Pixels whose colour is the markers' saturated green.
+fn is_green(p: &image::Rgb<u8>) -> bool {
+    let [r, g, b] = p.0.map(|c| c as f64 / 255.0);
+    let max = r.max(g).max(b);
+    let min = r.min(g).min(b);
+    max == g && max > 0.12 && (max - min) / max > 0.45 && g > 1.3 * r.max(b)
+}
+
+/// Centroid of the 8-connected green blob containing pixel `seed`, if any.
+fn blob_centroid(img: &image::RgbImage, seed: (u32, u32)) -> Option<(Point2<f64>, usize)> {
+    if !is_green(img.get_pixel(seed.0, seed.1)) {
+        return None;
+    }
+    let (w, h) = img.dimensions();
+    let mut seen = vec![false; (w * h) as usize];
+    let mut stack = vec![seed];
+    let (mut sx, mut sy, mut n) = (0.0, 0.0, 0usize);
+    seen[(seed.1 * w + seed.0) as usize] = true;
+    while let Some((x, y)) = stack.pop() {
+        sx += x as f64;
+        sy += y as f64;
+        n += 1;
+        for (dx, dy) in [
+            (-1i32, -1i32),
+            (0, -1),
+            (1, -1),
+            (-1, 0),
+            (1, 0),
+            (-1, 1),
+            (0, 1),
+            (1, 1),
+        ] {
+            let (nx, ny) = (x as i32 + dx, y as i32 + dy);
+            if nx < 0 || ny < 0 || nx >= w as i32 || ny >= h as i32 {
+                continue;
+            }
+            let i = (ny as u32 * w + nx as u32) as usize;
+            if !seen[i] && is_green(img.get_pixel(nx as u32, ny as u32)) {
+                seen[i] = true;
+                stack.push((nx as u32, ny as u32));
+            }
+        }
+    }
+    Some((Point2::new(sx / n as f64, sy / n as f64), n))
+}
+
+#[test]
+fn true_marker_faces_project_onto_their_green_blobs() {
+    let (dir, truth) = phantom();
+    let left_to_right = isometry_from_matrix(&truth.rig.left_to_right);
+    let mut checked = 0;
+    let mut worst: f64 = 0.0;
+    for view in &truth.views {
+        let left_pose = isometry_from_matrix(&view.left_camera_to_world);
+        let right_pose = left_pose * left_to_right.inverse();
+        for (file, camera, pose, visible) in [
+            (
+                &view.left,
+                &truth.rig.left,
+                left_pose,
+                &view.markers_visible_left,
+            ),
+            (
+                &view.right,
+                &truth.rig.right,
+                right_pose,
+                &view.markers_visible_right,
+            ),
+        ] {
+            let img = rgb(&dir.join(file));
+            let eye = Point3::from(pose.translation.vector);
+            for &id in visible {
+                let m = &truth.markers[id as usize];
+                let face = Point3::from(m.face_center_world_mm);
+                // Faces seen obliquely show their plastic rim and are partly
+                // hidden by it: keep those facing the camera within 60 deg.
+                if (eye - face).normalize().dot(&Vector3::from(m.normal_world)) < 0.5 {
+                    continue;
+                }
+                let p = camera.project(&(pose.inverse() * face)).unwrap();
+                let (centroid, pixels) =
+                    blob_centroid(&img, (p.x.round() as u32, p.y.round() as u32)).unwrap_or_else(
+                        || panic!("{file}: marker {id} at {p} is not on a green blob"),
+                    );
+                assert!(pixels > 50, "{file}: marker {id} blob has {pixels} pixels");
+                let err = (centroid - p).norm();
+                worst = worst.max(err);
+                assert!(
+                    err < 0.5,
+                    "{file}: marker {id}: blob centroid {centroid} vs projection {p}: {err} px"
+                );
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked >= 30, "only {checked} markers checked");
+    eprintln!("{checked} marker faces, worst centroid error {worst:.3} px");
+}
+
+#[test]
+fn chessboard_corners_land_on_the_rendered_corners() {
+    let (dir, truth) = phantom();
+    let left_to_right = isometry_from_matrix(&truth.rig.left_to_right);
+    let [cols, rows] = truth.chessboard.pattern;
+    let corners: Vec<Point3<f64>> = (0..rows)
+        .flat_map(|r| (0..cols).map(move |c| (c, r)))
+        .map(|(c, r)| {
+            Point3::new(
+                c as f64 * truth.chessboard.square_mm,
+                r as f64 * truth.chessboard.square_mm,
+                0.0,
+            )
+        })
+        .collect();
+    let (mut sum2, mut n, mut worst) = (0.0, 0usize, 0.0f64);
+    for pair in truth.calibration.iter().filter(|p| p.detectable) {
+        let board_to_left = isometry_from_matrix(&pair.board_to_left_camera);
+        for (file, camera, board_to_camera) in [
+            (&pair.left, &truth.rig.left, board_to_left),
+            (&pair.right, &truth.rig.right, left_to_right * board_to_left),
+        ] {
+            let img = rgb(&dir.join(file));
+            let grey: Vec<f32> = img
+                .pixels()
+                .map(|p| p.0.iter().map(|&c| c as f32).sum::<f32>() / 765.0)
+                .collect();
+            for corner in &corners {
+                let p = camera.project(&(board_to_camera * corner)).unwrap();
+                let (x, y) = refine_corner(&grey, camera.width, camera.height, (p.x, p.y), 4)
+                    .unwrap_or_else(|| panic!("{file}: no corner near {p}"));
+                let err = ((x - p.x).powi(2) + (y - p.y).powi(2)).sqrt();
+                worst = worst.max(err);
+                sum2 += err * err;
+                n += 1;
+            }
+        }
+    }
+    let rms = (sum2 / n as f64).sqrt();
+    eprintln!(
+        "{} phantom: {n} corners: rms {rms:.4} px, worst {worst:.4} px",
+        truth.size
+    );
+    assert!(n >= 15 * 2 * 54);
+    // Full renders anti-alias edges with 4 x 4 samples, small ones with 2 x 2
+    // (coverage in quarter steps), hence the looser bound there.
+    let (rms_max, worst_max) = if truth.size == "full" {
+        (0.08, 0.3)
+    } else {
+        (0.2, 0.6)
+    };
+    assert!(
+        rms < rms_max && worst < worst_max,
+        "rms {rms} px, worst {worst} px"
+    );
+}
+
+#[test]
+fn unusable_calibration_pairs_are_flagged() {
+    let (_, truth) = phantom();
+    let bad: Vec<_> = truth.calibration.iter().filter(|p| !p.detectable).collect();
+    assert_eq!(bad.len(), 3);
+    assert!(bad.iter().any(|p| p.note.contains("out of frame")));
+    assert!(bad.iter().any(|p| p.note.contains("oblique")));
+    assert!(truth.calibration.iter().filter(|p| p.detectable).count() >= 15);
+    assert!(truth.views.len() >= 6);
+    assert!((truth.rig.baseline_mm - 55.0).abs() < 1e-9);
+    assert!((truth.rig.verging_deg - 7.829).abs() < 1e-3);
+}
+
+#[test]
+fn simulated_camera_surface_follows_the_truth() {
+    let (_, truth) = phantom();
+    let p = SurfaceSimParams {
+        view: 2,
+        step_px: 4,
+        depth_noise_mm: 0.5,
+        lateral_noise_mm: 0.1,
+        outlier_fraction: 0.03,
+        marker_noise_mm: 0.3,
+        missing_markers: 2,
+        spurious_markers: 1,
+        seed: 5,
+    };
+    let sim = simulate_camera_surface(truth, &p).unwrap();
+    let left_to_world: Isometry3<f64> = isometry_from_matrix(&truth.views[2].left_camera_to_world);
+    // Skin samples hashed into 2 mm cells, for nearest-sample lookups.
+    let mut cells: std::collections::HashMap<[i64; 3], Vec<Point3<f64>>> = Default::default();
+    let cell = |p: &Point3<f64>| [p.x, p.y, p.z].map(|c| (c / 2.0).floor() as i64);
+    for s in &truth.skin_world_mm {
+        let p = Point3::from(*s);
+        cells.entry(cell(&p)).or_default().push(p);
+    }
+    let near_skin = |p: &Point3<f64>| {
+        let [x, y, z] = cell(p);
+        (-2..=2).any(|dx| {
+            (-2..=2).any(|dy| {
+                (-2..=2).any(|dz| {
+                    cells
+                        .get(&[x + dx, y + dy, z + dz])
+                        .is_some_and(|v| v.iter().any(|s| (s - p).norm() < 3.0))
+                })
+            })
+        })
+    };
+    let on_skin = sim
+        .points
+        .iter()
+        .filter(|q| {
+            near_skin(&(left_to_world * Point3::new(q[0] as f64, q[1] as f64, q[2] as f64)))
+        })
+        .count();
+    let n = sim.points.len();
+    assert!(n > 3000, "{n} points");
+    let fraction_off = 1.0 - on_skin as f64 / n as f64;
+    // About 3 % outliers plus the markers' own surfaces (not skin).
+    assert!(fraction_off > 0.01 && fraction_off < 0.15, "{fraction_off}");
+    assert!((sim.outliers as f64 / n as f64 - 0.03).abs() < 0.01);
+    let both: Vec<u32> = truth.views[2]
+        .markers_visible_left
+        .iter()
+        .copied()
+        .filter(|id| truth.views[2].markers_visible_right.contains(id))
+        .collect();
+    assert_eq!(sim.markers.len(), both.len() - 2 + 1);
+    assert_eq!(
+        sim.marker_truth_ids
+            .iter()
+            .filter(|id| id.is_none())
+            .count(),
+        1
+    );
+    for (m, id) in sim.markers.iter().zip(&sim.marker_truth_ids) {
+        if let Some(id) = id {
+            let truth_face = Point3::from(truth.markers[*id as usize].face_center_world_mm);
+            let err = (left_to_world * Point3::from(*m) - truth_face).norm();
+            assert!(err < 1.5, "marker {id}: {err} mm");
+        }
+    }
+}
+
+#[test]
+fn same_seed_gives_the_same_bytes_on_any_thread_count() {
+    let config = PhantomConfig {
+        size: PhantomSize::Small,
+        calibration_pairs: 3,
+        views: 1,
+        seed: 11,
+        ..PhantomConfig::default()
+    };
+    let t = tempfile::tempdir().unwrap();
+    let run = |threads: usize, name: &str| {
+        let dir = t.path().join(name);
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| generate(&config, &dir).unwrap());
+        fusegraph_engine::hash::hash_path(&dir).unwrap()
+    };
+    assert_eq!(run(1, "one"), run(2, "two"));
+    let other = PhantomConfig {
+        seed: 12,
+        ..config.clone()
+    };
+    generate(&other, &t.path().join("other")).unwrap();
+    assert_ne!(
+        run(2, "again"),
+        fusegraph_engine::hash::hash_path(&t.path().join("other")).unwrap()
+    );
+}

@@ -5,7 +5,7 @@
 
 use super::dicom_series::{RESCALE_SLOPE, SeriesIds, write_series};
 use super::mri::{MriParams, covering_grid, signal_of, synthesize};
-use super::render::{RenderParams, render, write_png};
+use super::render::{RenderParams, Renderer, write_png};
 use super::rig::{Rig, board_poses, view_poses};
 use super::scenes::{Chessboard, ChessboardScene, PhantomScene};
 use super::shape::{Material, PhantomShape, ShapeParams, Surface};
@@ -177,6 +177,7 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
         seed,
     };
     let poses = board_poses(&rig, &board, config.calibration_pairs, &mut rng);
+    let renderers = [Renderer::new(&rig.left), Renderer::new(&rig.right)];
     let left_pose = Isometry3::identity();
     let right_pose = rig.right_pose(&left_pose);
     let calibration = poses
@@ -198,7 +199,8 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
                     .enumerate()
             {
                 let seed = config.seed.wrapping_mul(1000) + 2 * index as u64 + side as u64;
-                let rgb = render(camera, camera_pose, &scene, &render_params(calib_ss, seed));
+                let rgb =
+                    renderers[side].render(camera_pose, &scene, &render_params(calib_ss, seed));
                 let path = dir.join(&names[side]);
                 write_png(&path, &rgb, camera.width, camera.height).map_err(|e| io(&path, e))?;
             }
@@ -239,7 +241,7 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
                     .enumerate()
             {
                 let seed = config.seed.wrapping_mul(7000) + 2 * index as u64 + side as u64;
-                let rgb = render(camera, pose, &scene, &render_params(view_ss, seed));
+                let rgb = renderers[side].render(pose, &scene, &render_params(view_ss, seed));
                 let path = dir.join(&names[side]);
                 write_png(&path, &rgb, camera.width, camera.height).map_err(|e| io(&path, e))?;
             }

@@ -70,16 +70,42 @@ impl RayMap {
     }
 }
 
-/// Renders `scene` as seen by `camera` placed at `camera_to_world`; returns
-/// interleaved 8-bit RGB, row-major.
-pub fn render(
+/// A camera ready to render: its model and its precomputed ray map, shared by
+/// every image it takes.
+pub struct Renderer<'a> {
+    camera: &'a CameraModel,
+    rays: RayMap,
+}
+
+impl<'a> Renderer<'a> {
+    /// Prepares `camera` (one distortion inversion per 16 pixels).
+    pub fn new(camera: &'a CameraModel) -> Self {
+        Renderer {
+            camera,
+            rays: RayMap::new(camera),
+        }
+    }
+
+    /// Renders `scene` with the camera at `camera_to_world`; returns interleaved
+    /// 8-bit RGB, row-major.
+    pub fn render(
+        &self,
+        camera_to_world: &Isometry3<f64>,
+        scene: &dyn Scene,
+        p: &RenderParams,
+    ) -> Vec<u8> {
+        render_with(self.camera, &self.rays, camera_to_world, scene, p)
+    }
+}
+
+fn render_with(
     camera: &CameraModel,
+    rays: &RayMap,
     camera_to_world: &Isometry3<f64>,
     scene: &dyn Scene,
     p: &RenderParams,
 ) -> Vec<u8> {
     let (w, h) = (camera.width, camera.height);
-    let rays = RayMap::new(camera);
     let origin = Point3::from(camera_to_world.translation.vector);
     // A rotation matrix is cheaper to apply than the quaternion, per sample.
     let rotation = camera_to_world.rotation.to_rotation_matrix();
@@ -247,7 +273,7 @@ mod tests {
             vignetting: false,
             seed: 1,
         };
-        let img = render(&camera(), &Isometry3::identity(), &HalfPlane, &p);
+        let img = Renderer::new(&camera()).render(&Isometry3::identity(), &HalfPlane, &p);
         // The edge projects to u = cx = 31.7: pixel 31 spans [30.5, 31.5] (white),
         // pixel 32 spans [31.5, 32.5], white over 0.2 of its width, which 8
         // samples per axis measure as 2 / 8.
@@ -292,8 +318,9 @@ mod tests {
             .num_threads(1)
             .build()
             .unwrap();
-        let a = one.install(|| render(&camera(), &Isometry3::identity(), &HalfPlane, &p));
-        let b = render(&camera(), &Isometry3::identity(), &HalfPlane, &p);
+        let c = camera();
+        let a = one.install(|| Renderer::new(&c).render(&Isometry3::identity(), &HalfPlane, &p));
+        let b = Renderer::new(&c).render(&Isometry3::identity(), &HalfPlane, &p);
         assert_eq!(a, b);
     }
 }

@@ -95,7 +95,7 @@ impl Scene for ChessboardScene {
         let t = (1600.0 - origin.z) / dir.z.max(1e-3);
         let p = origin + dir * t;
         let noise = ValueNoise::new(self.seed);
-        let v = 0.3 + 0.35 * noise.fractal(&p, 1.0 / 60.0, 2) as f32;
+        let v = 0.3 + 0.35 * noise.at(&p, 1.0 / 40.0) as f32;
         [v * 0.95, v, v * 1.05]
     }
 }

@@ -7,6 +7,7 @@ pub mod camera;
 pub mod dicom;
 pub mod io;
 pub mod math;
+pub mod mri;
 pub mod phantom;
 
 use fusegraph_engine::Registry;
@@ -17,6 +18,7 @@ pub fn register_all(registry: &mut Registry) -> Result<(), RegisterError> {
     dicom::register(registry)?;
     io::register(registry)?;
     math::register(registry)?;
+    mri::register(registry)?;
     phantom::register(registry)?;
     Ok(())
 }

@@ -23,6 +23,15 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 5)]
         repeat: usize,
     },
+    /// Marching cubes throughput on an N^3 volume holding a wavy sphere.
+    MarchingCubes {
+        /// Voxels along each axis.
+        #[arg(long, default_value_t = 256)]
+        size: usize,
+        /// Repetitions; the best time is reported.
+        #[arg(long, default_value_t = 3)]
+        repeat: usize,
+    },
 }
 
 /// A graph of `n` trivial nodes: 10 constants, then binary nodes each reading two
@@ -52,11 +61,48 @@ pub fn trivial_graph(n: usize) -> String {
 }
 
 pub fn run_bench(what: BenchCommand, registry: &Registry) -> anyhow::Result<()> {
-    let BenchCommand::Scheduler {
-        nodes,
-        jobs,
-        repeat,
-    } = what;
+    match what {
+        BenchCommand::Scheduler {
+            nodes,
+            jobs,
+            repeat,
+        } => scheduler(nodes, jobs, repeat, registry),
+        BenchCommand::MarchingCubes { size, repeat } => marching_cubes(size, repeat),
+    }
+}
+
+fn marching_cubes(n: usize, repeat: usize) -> anyhow::Result<()> {
+    use fusegraph_engine::value::Grid;
+    let c = (n as f64 - 1.0) / 2.0;
+    let values: Vec<f32> = (0..n * n * n)
+        .map(|idx| {
+            let (i, j, k) = (
+                (idx % n) as f64 - c,
+                ((idx / n) % n) as f64 - c,
+                (idx / (n * n)) as f64 - c,
+            );
+            let r = (i * i + j * j + k * k).sqrt();
+            (0.4 * n as f64 + 0.03 * n as f64 * (0.2 * i).sin() * (0.2 * j).cos() - r) as f32
+        })
+        .collect();
+    let grid = Grid::axis_aligned([n; 3], [0.5; 3], [0.0; 3]);
+    let mut best = f64::MAX;
+    let mut triangles = 0;
+    for _ in 0..repeat.max(1) {
+        let t = Instant::now();
+        let mesh = fusegraph_nodes::mri::marching_cubes(&values, &grid, 0.0);
+        best = best.min(t.elapsed().as_secs_f64());
+        triangles = mesh.triangles.len();
+    }
+    println!(
+        "marching cubes: {n}^3 voxels, {triangles} triangles, best of {repeat}: {:.1} ms, {:.1} Mvoxel/s",
+        best * 1e3,
+        (n * n * n) as f64 / best / 1e6
+    );
+    Ok(())
+}
+
+fn scheduler(nodes: usize, jobs: usize, repeat: usize, registry: &Registry) -> anyhow::Result<()> {
     let dir = tempfile::tempdir()?;
     let file = dir.path().join("bench.toml");
     std::fs::write(&file, trivial_graph(nodes))?;

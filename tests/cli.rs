@@ -400,3 +400,84 @@ in.truth = "phantom.truth"
         stderr(&o)
     );
 }
+
+fn graph_file(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("graphs")
+        .join(name)
+}
+
+#[test]
+fn mri_branch_meets_the_acceptance_figures_on_the_full_phantom() {
+    let t = tempfile::tempdir().unwrap();
+    std::fs::copy(graph_file("mri.toml"), t.path().join("mri.toml")).unwrap();
+    let o = fusegraph(&["run", "mri.toml"], t.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = t.path().join("out/mri");
+    let r = report(&out);
+    let m = |k: &str| {
+        r["metrics"][k]
+            .as_f64()
+            .unwrap_or_else(|| panic!("no metric {k}"))
+    };
+    assert_eq!(m("eval_markers.found"), 12.0);
+    assert_eq!(m("eval_markers.spurious"), 0.0);
+    assert!(
+        m("eval_markers.mean_error_mm") <= 0.1,
+        "{}",
+        m("eval_markers.mean_error_mm")
+    );
+    assert!(
+        m("eval_markers.max_error_mm") <= 0.25,
+        "{}",
+        m("eval_markers.max_error_mm")
+    );
+    assert!(
+        m("eval_surface.mean_mm") <= 0.3,
+        "{}",
+        m("eval_surface.mean_mm")
+    );
+    assert!(m("eval_surface.vertices_used") > 10_000.0);
+    // The written files: PLY and STL surfaces, Slicer markups with 12 points.
+    for f in ["skin.ply", "skin.stl", "mri_markers.csv"] {
+        assert!(out.join(f).metadata().unwrap().len() > 0, "{f}");
+    }
+    let markups: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("mri_markers.mrk.json")).unwrap())
+            .unwrap();
+    assert_eq!(markups["markups"][0]["coordinateSystem"], "LPS");
+    assert_eq!(
+        markups["markups"][0]["controlPoints"]
+            .as_array()
+            .unwrap()
+            .len(),
+        12
+    );
+}
+
+#[test]
+fn mri_graph_runs_on_real_slices_with_the_phantom_node_replaced() {
+    // The README's recipe: drop the phantom and evaluation nodes, give the
+    // loader a path.
+    let text = std::fs::read_to_string(graph_file("mri.toml")).unwrap();
+    let kept: Vec<&str> = text
+        .split("\n[node.")
+        .filter(|section| !section.starts_with("phantom]") && !section.starts_with("eval_"))
+        .collect();
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/dicom/series_CT5N_98892001");
+    let graph = kept.join("\n[node.").replace(
+        "in.dir = \"phantom.mri_dir\"",
+        &format!("path = {:?}", data.display().to_string()),
+    );
+    let t = tempfile::tempdir().unwrap();
+    std::fs::write(t.path().join("real.toml"), graph).unwrap();
+    let o = fusegraph(
+        &["run", "real.toml", "--set", "select.expected=0"],
+        t.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r = report(&t.path().join("out/mri"));
+    assert_eq!(r["metrics"]["load.slices"], 5.0);
+    assert!(r["metrics"]["surface.triangles"].as_f64().unwrap() > 0.0);
+    assert!(t.path().join("out/mri/skin.ply").exists());
+}

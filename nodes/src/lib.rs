@@ -5,6 +5,7 @@
 pub mod calib;
 pub mod camera;
 pub mod dicom;
+pub mod eval;
 pub mod io;
 pub mod math;
 pub mod mri;
@@ -16,6 +17,7 @@ use fusegraph_engine::registry::RegisterError;
 /// Registers every built-in node type.
 pub fn register_all(registry: &mut Registry) -> Result<(), RegisterError> {
     dicom::register(registry)?;
+    eval::register(registry)?;
     io::register(registry)?;
     math::register(registry)?;
     mri::register(registry)?;

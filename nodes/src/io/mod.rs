@@ -3,8 +3,12 @@
 
 mod path;
 mod write_json;
+mod write_markers;
+mod write_mesh;
 
 pub use write_json::value_to_json;
+pub use write_markers::{markers_csv, slicer_markups};
+pub use write_mesh::{write_ply, write_stl};
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;
@@ -14,5 +18,7 @@ use std::sync::Arc;
 pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.register(Arc::new(path::PathOp::new()))?;
     registry.register(Arc::new(write_json::WriteJsonOp::new()))?;
+    registry.register(Arc::new(write_markers::WriteMarkersOp::new()))?;
+    registry.register(Arc::new(write_mesh::WriteMeshOp::new()))?;
     Ok(())
 }

@@ -39,7 +39,8 @@ pub fn otsu_threshold(values: &[f32], bins: usize) -> Option<f32> {
         .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
             (a.min(v), b.max(v))
         });
-    if !(max > min) || bins < 2 {
+    // Also covers "no finite value" (min = inf, max = -inf).
+    if max <= min || bins < 2 {
         return None;
     }
     let width = (max - min) as f64 / bins as f64;

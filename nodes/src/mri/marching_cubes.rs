@@ -65,6 +65,7 @@ fn edge_between(a: usize, b: usize) -> usize {
 
 /// The six faces, each as its corners in counter-clockwise order seen from
 /// outside the cube.
+#[allow(clippy::needless_range_loop)] // axes index corner coordinates
 fn faces() -> Vec<[usize; 4]> {
     let mut faces = Vec::new();
     for axis in 0..3 {
@@ -155,6 +156,10 @@ fn triangulate_case(case: u8) -> Case {
     out
 }
 
+/// One slab's output: (edge or centre id, position in voxel indices) of every
+/// vertex it used, and its triangles as vertex ids.
+type Slab = (Vec<(u64, [f64; 3])>, Vec<[u64; 3]>);
+
 /// A triangle mesh in patient mm.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TriangleMesh {
@@ -185,18 +190,39 @@ pub fn marching_cubes(values: &[f32], grid: &Grid, level: f32) -> TriangleMesh {
         let lattice = (i + 1) as u64 + px * ((j + 1) as u64 + py * (k + 1) as u64);
         lattice * 3 + axis
     };
-    let slabs: Vec<(Vec<(u64, [f64; 3])>, Vec<[u64; 3]>)> = (-1..nz as isize)
+    let slabs: Vec<Slab> = (-1..nz as isize)
         .into_par_iter()
         .map(|k| {
             let mut verts = Vec::new();
             let mut tris = Vec::new();
             for j in -1..ny as isize {
                 for i in -1..nx as isize {
-                    let corner = |c: usize| {
-                        let o = CORNERS[c];
-                        value(i + o[0] as isize, j + o[1] as isize, k + o[2] as isize)
+                    let interior = i >= 0
+                        && j >= 0
+                        && k >= 0
+                        && i + 1 < nx as isize
+                        && j + 1 < ny as isize
+                        && k + 1 < nz as isize;
+                    let v: [f32; 8] = if interior {
+                        // Most cubes: direct reads, no padding checks.
+                        let base = i as usize + nx * (j as usize + ny * k as usize);
+                        let (dy, dz) = (nx, nx * ny);
+                        [
+                            values[base],
+                            values[base + 1],
+                            values[base + 1 + dy],
+                            values[base + dy],
+                            values[base + dz],
+                            values[base + 1 + dz],
+                            values[base + 1 + dy + dz],
+                            values[base + dy + dz],
+                        ]
+                    } else {
+                        std::array::from_fn(|c| {
+                            let o = CORNERS[c];
+                            value(i + o[0] as isize, j + o[1] as isize, k + o[2] as isize)
+                        })
                     };
-                    let v: [f32; 8] = std::array::from_fn(corner);
                     let case = (0..8).fold(0u8, |acc, c| acc | (((v[c] > level) as u8) << c));
                     if case == 0 || case == 255 {
                         continue;

@@ -210,6 +210,7 @@ mod tests {
     }
 
     #[test]
+    #[allow(clippy::needless_range_loop)] // matrix indices
     fn an_oblique_series_reads_back_with_its_geometry_and_values() {
         let rotation = nalgebra::Rotation3::from_euler_angles(0.35, -0.2, 0.1);
         let spacing = [0.7, 0.9, 1.6];

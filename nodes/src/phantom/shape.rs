@@ -323,6 +323,48 @@ impl PhantomShape {
         best
     }
 
+    /// Euclidean distance (mm) from `p` (phantom frame, inside or outside) to the
+    /// ellipsoid whose upper part is the skin, by Eberly's bisection on the
+    /// Lagrange parameter ("Distance from a point to an ellipse, an ellipsoid,
+    /// or a hyperellipsoid", 2013), accurate to ~1e-9 mm.
+    pub fn distance_to_ellipsoid(&self, p: &Point3<f64>) -> f64 {
+        let q = self.rotation().inverse() * (p - Point3::from(self.ellipsoid_center_mm));
+        let e = self.semi_axes_mm;
+        // First octant; a coordinate of exactly zero is nudged (the distance
+        // changes by far less than the tolerance).
+        let y: [f64; 3] = std::array::from_fn(|i| q[i].abs().max(1e-12));
+        let f = |t: f64| {
+            (0..3)
+                .map(|i| (e[i] * y[i] / (t + e[i] * e[i])).powi(2))
+                .sum::<f64>()
+                - 1.0
+        };
+        let m = (0..3)
+            .min_by(|&a, &b| e[a].total_cmp(&e[b]))
+            .expect("three axes");
+        let norm = (y[0] * y[0] + y[1] * y[1] + y[2] * y[2]).sqrt();
+        let (mut lo, mut hi) = (
+            -e[m] * e[m] + e[m] * y[m],
+            e.iter().cloned().fold(0.0, f64::max) * norm,
+        );
+        for _ in 0..200 {
+            let mid = 0.5 * (lo + hi);
+            if f(mid) > 0.0 {
+                lo = mid
+            } else {
+                hi = mid
+            }
+            if hi - lo < 1e-13 * (1.0 + hi.abs()) {
+                break;
+            }
+        }
+        let t = 0.5 * (lo + hi);
+        (0..3)
+            .map(|i| (e[i] * e[i] * y[i] / (t + e[i] * e[i]) - y[i]).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    }
+
     /// Distance (mm) from an inside point to the nearest point of the dome's
     /// skin, by sampling directions (an upper bound, exact to ~0.1 mm; used only
     /// to check lesion placement).
@@ -539,6 +581,27 @@ mod tests {
         assert!((s.to_unit_sphere(&p).norm() - 1.0).abs() < 1e-9);
         assert!(hit.normal.dot(&dir) < 0.0, "normal faces the camera");
         assert!(s.intersect(&origin, &-dir, 0.0).is_none());
+    }
+
+    #[test]
+    fn distance_to_the_ellipsoid_is_exact() {
+        let s = phantom();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        for _ in 0..200 {
+            // A surface point, moved along its normal by a known distance.
+            let dir = Vector3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(0.1..1.0),
+            )
+            .normalize();
+            let skin = s.exit_point(&Point3::new(0.0, 0.0, 5.0), &dir);
+            let n = s.skin_normal(&skin);
+            for d in [-3.0, -0.2, 0.0, 0.7, 4.0] {
+                let got = s.distance_to_ellipsoid(&(skin + n * d));
+                assert!((got - f64::abs(d)).abs() < 1e-6, "{d}: {got}");
+            }
+        }
     }
 
     #[test]

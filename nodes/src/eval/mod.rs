@@ -1,0 +1,20 @@
+//! Measurements against the phantom's ground truth: marker localisation errors
+//! and surface distances.
+
+mod markers;
+mod ops;
+mod surface;
+
+pub use markers::{MarkerComparison, compare_markers};
+pub use surface::{SurfaceDistances, skin_distances};
+
+use fusegraph_engine::Registry;
+use fusegraph_engine::registry::RegisterError;
+use std::sync::Arc;
+
+/// Registers the `eval.*` ops.
+pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
+    registry.register(Arc::new(ops::EvalMarkersOp::new()))?;
+    registry.register(Arc::new(ops::EvalSkinOp::new()))?;
+    Ok(())
+}

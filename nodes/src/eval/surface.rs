@@ -1,0 +1,66 @@
+//! Distances from a reconstructed surface to the phantom's true skin.
+
+use crate::phantom::PhantomShape;
+use nalgebra::{Isometry3, Point3, Vector3};
+
+/// Statistics of vertex-to-skin distances, mm.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SurfaceDistances {
+    /// Mean distance.
+    pub mean_mm: f64,
+    /// Root mean square distance.
+    pub rms_mm: f64,
+    /// 95th percentile.
+    pub p95_mm: f64,
+    /// Largest.
+    pub max_mm: f64,
+    /// Vertices measured (the rest lie on markers or the base).
+    pub used: usize,
+}
+
+/// Distances from `vertices` (in a frame mapped to the phantom frame by
+/// `to_phantom`) to the true skin, skipping vertices of other structures: on or
+/// near markers or lesions (within `marker_margin_mm` of their extent) and on the
+/// base (phantom z below `base_margin_mm`). `None` when no vertex is left.
+pub fn skin_distances(
+    shape: &PhantomShape,
+    to_phantom: &Isometry3<f64>,
+    vertices: impl Iterator<Item = [f64; 3]>,
+    marker_margin_mm: f64,
+    base_margin_mm: f64,
+) -> Option<SurfaceDistances> {
+    let mut d: Vec<f64> = vertices
+        .map(|v| to_phantom * Point3::from(v))
+        .filter(|p| p.z >= base_margin_mm)
+        .filter(|p| {
+            shape.markers.iter().all(|m| {
+                let s = Point3::from(m.skin_point_mm);
+                let n = Vector3::from(m.normal);
+                let h = (p - s).dot(&n);
+                let radial = ((p - s).norm_squared() - h * h).max(0.0).sqrt();
+                radial > m.radius_mm + marker_margin_mm
+                    || h > m.height_mm + marker_margin_mm
+                    || h < -m.below_skin_mm - marker_margin_mm
+            })
+        })
+        .filter(|p| {
+            shape
+                .lesions
+                .iter()
+                .all(|l| (p - Point3::from(l.center_mm)).norm() > l.radius_mm + marker_margin_mm)
+        })
+        .map(|p| shape.distance_to_ellipsoid(&p))
+        .collect();
+    if d.is_empty() {
+        return None;
+    }
+    d.sort_by(f64::total_cmp);
+    let n = d.len() as f64;
+    Some(SurfaceDistances {
+        mean_mm: d.iter().sum::<f64>() / n,
+        rms_mm: (d.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
+        p95_mm: d[((0.95 * (n - 1.0)).round() as usize).min(d.len() - 1)],
+        max_mm: *d.last().expect("non-empty"),
+        used: d.len(),
+    })
+}

@@ -190,3 +190,124 @@ fn bad_inputs_get_clear_errors() {
         Err(SeriesError::NoSuchSeries { .. })
     ));
 }
+
+/// An enhanced multi-frame MR file: geometry in the functional groups, frames
+/// stored in reverse order along the normal.
+fn write_multiframe(path: &std::path::Path) {
+    use dicom_core::value::{C, DataSetSequence, PrimitiveValue};
+    use dicom_core::{DataElement, VR};
+    use dicom_dictionary_std::{tags, uids};
+    use dicom_object::{FileMetaTableBuilder, InMemDicomObject};
+    let ds = |v: &[f64]| PrimitiveValue::Strs(v.iter().map(|x| format!("{x}")).collect());
+    let seq = |tag, items: Vec<InMemDicomObject>| {
+        DataElement::new(tag, VR::SQ, DataSetSequence::from(items))
+    };
+    let item =
+        |tag, vr, value| InMemDicomObject::from_element_iter([DataElement::new(tag, vr, value)]);
+    let (rows, cols, frames) = (4u16, 3u16, 3usize);
+    let mut obj = InMemDicomObject::new_empty();
+    obj.put(DataElement::new(
+        tags::SOP_CLASS_UID,
+        VR::UI,
+        PrimitiveValue::from(uids::ENHANCED_MR_IMAGE_STORAGE),
+    ));
+    obj.put(DataElement::new(
+        tags::SOP_INSTANCE_UID,
+        VR::UI,
+        PrimitiveValue::from("2.25.1234"),
+    ));
+    obj.put(DataElement::new(
+        tags::SERIES_INSTANCE_UID,
+        VR::UI,
+        PrimitiveValue::from("2.25.99"),
+    ));
+    obj.put(DataElement::new(
+        tags::MODALITY,
+        VR::CS,
+        PrimitiveValue::from("MR"),
+    ));
+    obj.put(DataElement::new(
+        tags::NUMBER_OF_FRAMES,
+        VR::IS,
+        PrimitiveValue::from("3"),
+    ));
+    for (tag, v) in [
+        (tags::ROWS, rows),
+        (tags::COLUMNS, cols),
+        (tags::SAMPLES_PER_PIXEL, 1),
+        (tags::BITS_ALLOCATED, 16),
+        (tags::BITS_STORED, 16),
+        (tags::HIGH_BIT, 15),
+        (tags::PIXEL_REPRESENTATION, 0),
+    ] {
+        obj.put(DataElement::new(tag, VR::US, PrimitiveValue::from(v)));
+    }
+    obj.put(DataElement::new(
+        tags::PHOTOMETRIC_INTERPRETATION,
+        VR::CS,
+        PrimitiveValue::from("MONOCHROME2"),
+    ));
+    let shared = InMemDicomObject::from_element_iter([
+        seq(
+            tags::PLANE_ORIENTATION_SEQUENCE,
+            vec![item(
+                tags::IMAGE_ORIENTATION_PATIENT,
+                VR::DS,
+                ds(&[1.0, 0.0, 0.0, 0.0, 0.0, -1.0]),
+            )],
+        ),
+        seq(
+            tags::PIXEL_MEASURES_SEQUENCE,
+            vec![InMemDicomObject::from_element_iter([
+                DataElement::new(tags::PIXEL_SPACING, VR::DS, ds(&[0.5, 0.25])),
+                DataElement::new(tags::SLICE_THICKNESS, VR::DS, ds(&[2.0])),
+            ])],
+        ),
+    ]);
+    obj.put(seq(tags::SHARED_FUNCTIONAL_GROUPS_SEQUENCE, vec![shared]));
+    // Coronal frames (normal = row x col = x x -z = +y), stored at y = 4, 2, 0.
+    let per_frame: Vec<InMemDicomObject> = (0..frames)
+        .map(|f| {
+            InMemDicomObject::from_element_iter([seq(
+                tags::PLANE_POSITION_SEQUENCE,
+                vec![item(
+                    tags::IMAGE_POSITION_PATIENT,
+                    VR::DS,
+                    ds(&[-5.0, 4.0 - 2.0 * f as f64, 30.0]),
+                )],
+            )])
+        })
+        .collect();
+    obj.put(seq(tags::PER_FRAME_FUNCTIONAL_GROUPS_SEQUENCE, per_frame));
+    let pixels: Vec<u16> = (0..frames * (rows * cols) as usize)
+        .map(|i| (i / (rows * cols) as usize * 100 + i % 12) as u16)
+        .collect();
+    obj.put(DataElement::new(
+        tags::PIXEL_DATA,
+        VR::OW,
+        PrimitiveValue::U16(C::from_vec(pixels)),
+    ));
+    obj.with_meta(FileMetaTableBuilder::new().transfer_syntax(uids::EXPLICIT_VR_LITTLE_ENDIAN))
+        .unwrap()
+        .write_to_file(path)
+        .unwrap();
+}
+
+#[test]
+fn enhanced_multiframe_files_load_sorted_along_the_normal() {
+    let t = tempfile::tempdir().unwrap();
+    let path = t.path().join("multi.dcm");
+    write_multiframe(&path);
+    let s = load_series(&path, None).unwrap();
+    assert_eq!(s.grid.dims, [3, 4, 3]);
+    let sp = s.grid.spacing_mm();
+    assert!(
+        close(sp[0], 0.25, 1e-9) && close(sp[1], 0.5, 1e-9) && close(sp[2], 2.0, 1e-9),
+        "{sp:?}"
+    );
+    // The normal is +y: the first slice is the frame at y = 0 (stored last).
+    assert_eq!(s.grid.to_patient([0.0, 0.0, 0.0]), [-5.0, 0.0, 30.0]);
+    assert_eq!(s.grid.to_patient([2.0, 3.0, 2.0]), [-4.5, 4.0, 28.5]);
+    assert_eq!(s.voxels[0], 200.0, "frame 2 comes first");
+    assert_eq!(s.voxels[2 * 12], 0.0, "frame 0 comes last");
+}

@@ -23,11 +23,15 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 5)]
         repeat: usize,
     },
-    /// Marching cubes throughput on an N^3 volume holding a wavy sphere.
+    /// Marching cubes throughput on an N^3 volume holding a wavy sphere, or on a
+    /// DICOM series at its mean value (as ../shared/bench/peers.py mc does).
     MarchingCubes {
         /// Voxels along each axis.
         #[arg(long, default_value_t = 256)]
         size: usize,
+        /// A DICOM series (folder) to contour instead.
+        #[arg(long)]
+        dicom: Option<std::path::PathBuf>,
         /// Repetitions; the best time is reported.
         #[arg(long, default_value_t = 3)]
         repeat: usize,
@@ -67,37 +71,52 @@ pub fn run_bench(what: BenchCommand, registry: &Registry) -> anyhow::Result<()> 
             jobs,
             repeat,
         } => scheduler(nodes, jobs, repeat, registry),
-        BenchCommand::MarchingCubes { size, repeat } => marching_cubes(size, repeat),
+        BenchCommand::MarchingCubes {
+            size,
+            dicom,
+            repeat,
+        } => marching_cubes(size, dicom.as_deref(), repeat),
     }
 }
 
-fn marching_cubes(n: usize, repeat: usize) -> anyhow::Result<()> {
+fn marching_cubes(n: usize, dicom: Option<&std::path::Path>, repeat: usize) -> anyhow::Result<()> {
     use fusegraph_engine::value::Grid;
-    let c = (n as f64 - 1.0) / 2.0;
-    let values: Vec<f32> = (0..n * n * n)
-        .map(|idx| {
-            let (i, j, k) = (
-                (idx % n) as f64 - c,
-                ((idx / n) % n) as f64 - c,
-                (idx / (n * n)) as f64 - c,
-            );
-            let r = (i * i + j * j + k * k).sqrt();
-            (0.4 * n as f64 + 0.03 * n as f64 * (0.2 * i).sin() * (0.2 * j).cos() - r) as f32
-        })
-        .collect();
-    let grid = Grid::axis_aligned([n; 3], [0.5; 3], [0.0; 3]);
+    let (values, grid, level) = match dicom {
+        Some(dir) => {
+            let s = fusegraph_nodes::dicom::load_series(dir, None)?;
+            let mean = s.voxels.iter().map(|&v| v as f64).sum::<f64>() / s.voxels.len() as f64;
+            (s.voxels, s.grid, mean as f32)
+        }
+        None => {
+            let c = (n as f64 - 1.0) / 2.0;
+            let values: Vec<f32> = (0..n * n * n)
+                .map(|idx| {
+                    let (i, j, k) = (
+                        (idx % n) as f64 - c,
+                        ((idx / n) % n) as f64 - c,
+                        (idx / (n * n)) as f64 - c,
+                    );
+                    let r = (i * i + j * j + k * k).sqrt();
+                    (0.4 * n as f64 + 0.03 * n as f64 * (0.2 * i).sin() * (0.2 * j).cos() - r)
+                        as f32
+                })
+                .collect();
+            (values, Grid::axis_aligned([n; 3], [0.5; 3], [0.0; 3]), 0.0)
+        }
+    };
     let mut best = f64::MAX;
     let mut triangles = 0;
     for _ in 0..repeat.max(1) {
         let t = Instant::now();
-        let mesh = fusegraph_nodes::mri::marching_cubes(&values, &grid, 0.0);
+        let mesh = fusegraph_nodes::mri::marching_cubes(&values, &grid, level);
         best = best.min(t.elapsed().as_secs_f64());
         triangles = mesh.triangles.len();
     }
     println!(
-        "marching cubes: {n}^3 voxels, {triangles} triangles, best of {repeat}: {:.1} ms, {:.1} Mvoxel/s",
+        "marching cubes: {:?} voxels, level {level:.3}, {triangles} triangles, best of {repeat}: {:.1} ms, {:.1} Mvoxel/s",
+        grid.dims,
         best * 1e3,
-        (n * n * n) as f64 / best / 1e6
+        values.len() as f64 / best / 1e6
     );
     Ok(())
 }

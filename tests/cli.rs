@@ -481,3 +481,30 @@ fn mri_graph_runs_on_real_slices_with_the_phantom_node_replaced() {
     assert!(r["metrics"]["surface.triangles"].as_f64().unwrap() > 0.0);
     assert!(t.path().join("out/mri/skin.ply").exists());
 }
+
+#[test]
+fn design_graph_reproduces_the_papers_design() {
+    let t = tempfile::tempdir().unwrap();
+    std::fs::copy(graph_file("design.toml"), t.path().join("design.toml")).unwrap();
+    let o = fusegraph(&["run", "design.toml"], t.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = t.path().join("out/design");
+    let r = report(&out);
+    let m = |k: &str| {
+        r["metrics"][k]
+            .as_f64()
+            .unwrap_or_else(|| panic!("no metric {k}"))
+    };
+    assert!((m("lens.focal_mm") - 7.68).abs() < 1e-12);
+    assert_eq!(m("lens.lens_mm"), 8.0);
+    assert!((m("lens.fov_mm") - 240.0).abs() < 1e-9);
+    assert!((m("verging.theta_deg") - 7.829).abs() < 1e-3);
+    let slope = m("monte_carlo.loglog_slope_z");
+    assert!((-2.6..=-1.4).contains(&slope), "{slope}");
+    let csv = std::fs::read_to_string(out.join("baseline_study.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 6);
+    assert!(csv.starts_with("baseline_mm,verging_deg,var_x_mm2,var_y_mm2,var_z_mm2"));
+    assert!(out.join("baseline_study.md").exists() && out.join("depth_of_field.csv").exists());
+    let png = image::open(out.join("z_variance_vs_baseline.png")).unwrap();
+    assert_eq!((png.width(), png.height()), (800, 560));
+}

@@ -4,24 +4,28 @@
 
 pub mod calib;
 pub mod camera;
+pub mod design;
 pub mod dicom;
 pub mod eval;
 pub mod io;
 pub mod math;
 pub mod mri;
 pub mod phantom;
+pub mod plot;
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;
 
 /// Registers every built-in node type.
 pub fn register_all(registry: &mut Registry) -> Result<(), RegisterError> {
+    design::register(registry)?;
     dicom::register(registry)?;
     eval::register(registry)?;
     io::register(registry)?;
     math::register(registry)?;
     mri::register(registry)?;
     phantom::register(registry)?;
+    plot::register(registry)?;
     Ok(())
 }
 

@@ -5,10 +5,12 @@ mod path;
 mod write_json;
 mod write_markers;
 mod write_mesh;
+mod write_table;
 
 pub use write_json::value_to_json;
 pub use write_markers::{markers_csv, slicer_markups};
 pub use write_mesh::{write_ply, write_stl};
+pub use write_table::{table_csv, table_markdown};
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;
@@ -20,5 +22,6 @@ pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.register(Arc::new(write_json::WriteJsonOp::new()))?;
     registry.register(Arc::new(write_markers::WriteMarkersOp::new()))?;
     registry.register(Arc::new(write_mesh::WriteMeshOp::new()))?;
+    registry.register(Arc::new(write_table::WriteTableOp::new()))?;
     Ok(())
 }

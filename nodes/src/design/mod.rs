@@ -1,0 +1,26 @@
+//! Camera setup design (the paper's module B): lens focal length, depth of
+//! field, verging angle, and the Monte Carlo study of triangulation reliability
+//! against baseline.
+
+mod monte_carlo;
+mod ops;
+mod optics;
+
+pub use monte_carlo::{BaselineStudy, StudyParams, VarianceRow, baseline_study, triangulate_dlt};
+pub use optics::{
+    blur_circle_mm, focal_length_mm, focus_for_range_mm, min_f_number, nearest_lens_mm,
+    verging_angle_deg,
+};
+
+use fusegraph_engine::Registry;
+use fusegraph_engine::registry::RegisterError;
+use std::sync::Arc;
+
+/// Registers the `design.*` ops.
+pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
+    registry.register(Arc::new(ops::FocalLengthOp::new()))?;
+    registry.register(Arc::new(ops::DepthOfFieldOp::new()))?;
+    registry.register(Arc::new(ops::VergingAngleOp::new()))?;
+    registry.register(Arc::new(ops::MonteCarloOp::new()))?;
+    Ok(())
+}

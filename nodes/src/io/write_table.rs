@@ -1,0 +1,116 @@
+//! `io.write_table`: a table as CSV and as a Markdown table.
+
+use fusegraph_engine::schedule::path_value;
+use fusegraph_engine::value::Table;
+use fusegraph_engine::{
+    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType,
+};
+
+/// CSV with a header row; numbers in full precision.
+pub fn table_csv(t: &Table) -> String {
+    let mut s = t.columns.join(",") + "\n";
+    for r in 0..t.row_count() {
+        s += &t
+            .row(r)
+            .iter()
+            .map(|v| v.to_string())
+            .collect::<Vec<_>>()
+            .join(",");
+        s.push('\n');
+    }
+    s
+}
+
+/// A Markdown table with `digits` significant digits.
+pub fn table_markdown(t: &Table, digits: usize) -> String {
+    let fmt = |v: f64| {
+        if v == 0.0 || !v.is_finite() {
+            return format!("{v}");
+        }
+        let magnitude = v.abs().log10().floor() as i32;
+        let decimals = (digits as i32 - 1 - magnitude).max(0) as usize;
+        format!("{v:.decimals$}")
+    };
+    let mut s = format!(
+        "| {} |\n|{}|\n",
+        t.columns.join(" | "),
+        vec![" ---: "; t.columns.len()].join("|")
+    );
+    for r in 0..t.row_count() {
+        s += &format!(
+            "| {} |\n",
+            t.row(r)
+                .iter()
+                .map(|&v| fmt(v))
+                .collect::<Vec<_>>()
+                .join(" | ")
+        );
+    }
+    s
+}
+
+pub(crate) struct WriteTableOp(OpSpec);
+
+impl WriteTableOp {
+    pub(crate) fn new() -> Self {
+        WriteTableOp(
+            OpSpec::new(
+                "io.write_table",
+                1,
+                "Write a table as CSV and Markdown under the output folder",
+            )
+            .input("table", &[ValueType::Table], "The table")
+            .param(ParamSpec::string(
+                "file",
+                "table",
+                "Base name: writes NAME.csv and NAME.md",
+            ))
+            .param(
+                ParamSpec::int("digits", 4, "", "Significant digits in the Markdown")
+                    .range(1.0, 17.0),
+            )
+            .output("csv", ValueType::Path, "The CSV file")
+            .output("markdown", ValueType::Path, "The Markdown file")
+            .writes_output(),
+        )
+    }
+}
+
+impl Op for WriteTableOp {
+    fn spec(&self) -> &OpSpec {
+        &self.0
+    }
+    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
+        let t = inputs.get::<Table>("table")?;
+        let name = params.string("file")?;
+        let csv = ctx.output_path(&format!("{name}.csv"))?;
+        std::fs::write(&csv, table_csv(&t)).map_err(|e| OpError::io(&csv, e))?;
+        let md = ctx.output_path(&format!("{name}.md"))?;
+        std::fs::write(&md, table_markdown(&t, params.count("digits")?))
+            .map_err(|e| OpError::io(&md, e))?;
+        Ok(Outputs::new()
+            .with("csv", path_value(&csv)?)
+            .with("markdown", path_value(&md)?))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn csv_and_markdown() {
+        let t = Table::new(
+            vec!["b_mm".into(), "var_mm2".into()],
+            vec![50.0, 11.8612, 100.0, 0.004567],
+        )
+        .unwrap();
+        assert_eq!(table_csv(&t), "b_mm,var_mm2\n50,11.8612\n100,0.004567\n");
+        let md = table_markdown(&t, 3);
+        assert!(md.starts_with("| b_mm | var_mm2 |\n"), "{md}");
+        assert!(
+            md.contains("| 50.0 | 11.9 |") && md.contains("| 100 | 0.00457 |"),
+            "{md}"
+        );
+    }
+}

@@ -1,0 +1,276 @@
+//! `plot.lines`: line plots of table columns as PNG, with plotters (text drawn
+//! with the bundled DejaVu Sans, so no system font library is needed).
+
+use fusegraph_engine::registry::RegisterError;
+use fusegraph_engine::schedule::path_value;
+use fusegraph_engine::value::Table;
+use fusegraph_engine::{
+    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, Registry, RunCtx, ValueType,
+};
+use plotters::prelude::*;
+use std::path::Path;
+use std::sync::{Arc, Once};
+
+/// Registers the `plot.*` ops.
+pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
+    registry.register(Arc::new(LinesOp::new()))
+}
+
+/// What to draw.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LinePlot {
+    /// Column on the x axis.
+    pub x: String,
+    /// Columns drawn as lines.
+    pub y: Vec<String>,
+    /// Title.
+    pub title: String,
+    /// Axis labels.
+    pub x_label: String,
+    /// Axis labels.
+    pub y_label: String,
+    /// Logarithmic axes.
+    pub log_x: bool,
+    /// Logarithmic axes.
+    pub log_y: bool,
+    /// Image size, px.
+    pub size_px: (u32, u32),
+}
+
+fn register_font() {
+    static FONT: Once = Once::new();
+    FONT.call_once(|| {
+        let _ = plotters::style::register_font(
+            "sans-serif",
+            FontStyle::Normal,
+            include_bytes!("../../assets/DejaVuSans.ttf"),
+        );
+    });
+}
+
+/// Draws `plot` of `table` into a PNG at `path`.
+pub fn draw_lines(table: &Table, plot: &LinePlot, path: &Path) -> Result<(), String> {
+    register_font();
+    let column = |name: &str| {
+        table
+            .column(name)
+            .ok_or_else(|| format!("no column `{name}`; columns: {}", table.columns.join(", ")))
+    };
+    let xs = column(&plot.x)?;
+    let series: Vec<(String, Vec<f64>)> = plot
+        .y
+        .iter()
+        .map(|n| Ok((n.clone(), column(n)?)))
+        .collect::<Result<_, String>>()?;
+    let all_y: Vec<f64> = series.iter().flat_map(|s| s.1.iter().copied()).collect();
+    let range = |v: &[f64], log: bool| -> Result<(f64, f64), String> {
+        let v: Vec<f64> = v
+            .iter()
+            .copied()
+            .filter(|x| x.is_finite() && (!log || *x > 0.0))
+            .collect();
+        let (lo, hi) = v
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
+        if !lo.is_finite() {
+            return Err("nothing to plot (no finite, and for log axes positive, values)".into());
+        }
+        let (lo, hi) = if lo == hi {
+            (lo * 0.9 - 1e-9, hi * 1.1 + 1e-9)
+        } else {
+            (lo, hi)
+        };
+        Ok(if log {
+            (lo / 1.2, hi * 1.2)
+        } else {
+            (lo - 0.05 * (hi - lo), hi + 0.05 * (hi - lo))
+        })
+    };
+    let (x_range, y_range) = (range(&xs, plot.log_x)?, range(&all_y, plot.log_y)?);
+    let (w, h) = plot.size_px;
+    let mut pixels = vec![255u8; w as usize * h as usize * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut pixels, plot.size_px).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| e.to_string())?;
+        let colours = [BLUE, RED, GREEN, MAGENTA, CYAN, BLACK];
+        macro_rules! draw {
+            ($x:expr, $y:expr) => {{
+                let mut chart = ChartBuilder::on(&root)
+                    .caption(&plot.title, ("sans-serif", 22))
+                    .margin(12)
+                    .x_label_area_size(45)
+                    .y_label_area_size(70)
+                    .build_cartesian_2d($x, $y)
+                    .map_err(|e| e.to_string())?;
+                chart
+                    .configure_mesh()
+                    .x_desc(&plot.x_label)
+                    .y_desc(&plot.y_label)
+                    .label_style(("sans-serif", 14))
+                    .draw()
+                    .map_err(|e| e.to_string())?;
+                for (i, (name, ys)) in series.iter().enumerate() {
+                    let colour = colours[i % colours.len()];
+                    let points: Vec<(f64, f64)> = xs
+                        .iter()
+                        .copied()
+                        .zip(ys.iter().copied())
+                        .filter(|(x, y)| x.is_finite() && y.is_finite())
+                        .collect();
+                    chart
+                        .draw_series(LineSeries::new(points.clone(), colour.stroke_width(2)))
+                        .map_err(|e| e.to_string())?
+                        .label(name.clone())
+                        .legend(move |(x, y)| {
+                            PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
+                        });
+                    chart
+                        .draw_series(points.iter().map(|&p| Circle::new(p, 3, colour.filled())))
+                        .map_err(|e| e.to_string())?;
+                }
+                chart
+                    .configure_series_labels()
+                    .background_style(WHITE.mix(0.8))
+                    .border_style(BLACK)
+                    .label_font(("sans-serif", 14))
+                    .draw()
+                    .map_err(|e| e.to_string())?;
+            }};
+        }
+        let (xr, yr) = (x_range.0..x_range.1, y_range.0..y_range.1);
+        match (plot.log_x, plot.log_y) {
+            (false, false) => draw!(xr, yr),
+            (true, false) => draw!(xr.log_scale(), yr),
+            (false, true) => draw!(xr, yr.log_scale()),
+            (true, true) => draw!(xr.log_scale(), yr.log_scale()),
+        }
+        root.present().map_err(|e| e.to_string())?;
+    }
+    image::save_buffer(path, &pixels, w, h, image::ExtendedColorType::Rgb8)
+        .map_err(|e| e.to_string())
+}
+
+struct LinesOp(OpSpec);
+
+impl LinesOp {
+    fn new() -> Self {
+        LinesOp(
+            OpSpec::new(
+                "plot.lines",
+                1,
+                "Line plot (PNG) of table columns against one column",
+            )
+            .input("table", &[ValueType::Table], "The table")
+            .param(ParamSpec::string(
+                "x",
+                "",
+                "Column on the x axis (default: the first)",
+            ))
+            .param(ParamSpec::string_list(
+                "y",
+                &[],
+                "Columns drawn as lines (default: all others)",
+            ))
+            .param(ParamSpec::string("title", "", "Title"))
+            .param(ParamSpec::string(
+                "x_label",
+                "",
+                "x axis label (default: the column name)",
+            ))
+            .param(ParamSpec::string("y_label", "", "y axis label"))
+            .param(ParamSpec::bool("log_x", false, "Logarithmic x axis"))
+            .param(ParamSpec::bool("log_y", false, "Logarithmic y axis"))
+            .param(
+                ParamSpec::int_list("size_px", &[800, 560], "px", "Width and height")
+                    .range(100.0, 8000.0),
+            )
+            .param(ParamSpec::string(
+                "file",
+                "plot.png",
+                "PNG file, relative to the output folder",
+            ))
+            .output("file", ValueType::Path, "The PNG")
+            .writes_output(),
+        )
+    }
+}
+
+impl Op for LinesOp {
+    fn spec(&self) -> &OpSpec {
+        &self.0
+    }
+    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
+        let t = inputs.get::<Table>("table")?;
+        let x = match params.string("x")? {
+            x if x.is_empty() => t.columns[0].clone(),
+            x => x,
+        };
+        let y = match params.string_list("y")? {
+            y if y.is_empty() => t.columns.iter().filter(|c| **c != x).cloned().collect(),
+            y => y,
+        };
+        let size = params.int_list("size_px")?;
+        let &[w, h] = size.as_slice() else {
+            return Err(OpError::invalid("size_px takes two numbers"));
+        };
+        let plot = LinePlot {
+            x_label: match params.string("x_label")? {
+                l if l.is_empty() => x.clone(),
+                l => l,
+            },
+            x,
+            y,
+            title: params.string("title")?,
+            y_label: params.string("y_label")?,
+            log_x: params.bool("log_x")?,
+            log_y: params.bool("log_y")?,
+            size_px: (w as u32, h as u32),
+        };
+        let path = ctx.output_path(&params.string("file")?)?;
+        draw_lines(&t, &plot, &path)
+            .map_err(|e| OpError::invalid(format!("{}: {e}", path.display())))?;
+        Ok(Outputs::new().with("file", path_value(&path)?))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn draws_a_log_log_plot_and_names_missing_columns() {
+        let t = Table::new(
+            vec!["b".into(), "v".into()],
+            vec![5.0, 11.9, 10.0, 2.8, 25.0, 0.38],
+        )
+        .unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("p.png");
+        let plot = LinePlot {
+            x: "b".into(),
+            y: vec!["v".into()],
+            title: "var".into(),
+            x_label: "b".into(),
+            y_label: "v".into(),
+            log_x: true,
+            log_y: true,
+            size_px: (400, 300),
+        };
+        draw_lines(&t, &plot, &path).unwrap();
+        let img = image::open(&path).unwrap().to_rgb8();
+        assert_eq!(img.dimensions(), (400, 300));
+        // Something other than white was drawn (axes, text, line).
+        assert!(img.pixels().filter(|p| p.0 != [255, 255, 255]).count() > 1000);
+        let bad = LinePlot {
+            y: vec!["w".into()],
+            ..plot
+        };
+        assert!(
+            draw_lines(&t, &bad, &path)
+                .unwrap_err()
+                .contains("no column `w`")
+        );
+    }
+}

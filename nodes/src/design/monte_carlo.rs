@@ -35,6 +35,22 @@ pub struct StudyParams {
     pub seed: u64,
 }
 
+impl BaselineStudy {
+    /// Least-squares slope of log(var z) against log(baseline), if there are
+    /// at least two baselines (-2 for depth error ~ Z^2 / (f b)).
+    pub fn loglog_slope_z(&self) -> Option<f64> {
+        if self.rows.len() < 2 {
+            return None;
+        }
+        let xs: Vec<f64> = self.rows.iter().map(|r| r.baseline_mm.ln()).collect();
+        let ys: Vec<f64> = self.rows.iter().map(|r| r.variance_mm2[2].ln()).collect();
+        let n = xs.len() as f64;
+        let (mx, my) = (xs.iter().sum::<f64>() / n, ys.iter().sum::<f64>() / n);
+        let covariance: f64 = xs.iter().zip(&ys).map(|(x, y)| (x - mx) * (y - my)).sum();
+        Some(covariance / xs.iter().map(|x| (x - mx).powi(2)).sum::<f64>())
+    }
+}
+
 /// Mean variance of the estimates (mm^2) for one baseline.
 #[derive(Debug, Clone, PartialEq)]
 pub struct VarianceRow {
@@ -217,16 +233,7 @@ mod tests {
         let study = baseline_study(&params()).unwrap();
         let z: Vec<f64> = study.rows.iter().map(|r| r.variance_mm2[2]).collect();
         assert!(z.windows(2).all(|w| w[1] < w[0]), "{z:?}");
-        // Least-squares slope of log var_z against log b.
-        let xs: Vec<f64> = study.rows.iter().map(|r| r.baseline_mm.ln()).collect();
-        let ys: Vec<f64> = z.iter().map(|v| v.ln()).collect();
-        let (mx, my) = (xs.iter().sum::<f64>() / 5.0, ys.iter().sum::<f64>() / 5.0);
-        let slope = xs
-            .iter()
-            .zip(&ys)
-            .map(|(x, y)| (x - mx) * (y - my))
-            .sum::<f64>()
-            / xs.iter().map(|x| (x - mx).powi(2)).sum::<f64>();
+        let slope = study.loglog_slope_z().unwrap();
         assert!((-2.6..=-1.4).contains(&slope), "slope {slope}");
         // Lateral precision changes little with baseline; depth dominates.
         assert!(

@@ -320,17 +320,7 @@ impl Op for MonteCarloOp {
                 row
             })
             .collect();
-        if study.rows.len() >= 2 {
-            let xs: Vec<f64> = study.rows.iter().map(|r| r.baseline_mm.ln()).collect();
-            let ys: Vec<f64> = study.rows.iter().map(|r| r.variance_mm2[2].ln()).collect();
-            let n = xs.len() as f64;
-            let (mx, my) = (xs.iter().sum::<f64>() / n, ys.iter().sum::<f64>() / n);
-            let slope = xs
-                .iter()
-                .zip(&ys)
-                .map(|(x, y)| (x - mx) * (y - my))
-                .sum::<f64>()
-                / xs.iter().map(|x| (x - mx).powi(2)).sum::<f64>();
+        if let Some(slope) = study.loglog_slope_z() {
             ctx.metric("loglog_slope_z", slope);
         }
         Ok(Outputs::new().with("table", table(&columns, rows)?))

@@ -1,0 +1,285 @@
+//! Single-camera calibration: Zhang's closed form for a start, then
+//! Levenberg-Marquardt over intrinsics, the free distortion coefficients and
+//! every view's pose, minimising the reprojection error in pixels.
+
+use super::homography::homography;
+use super::lm::{LeastSquares, levenberg_marquardt};
+use super::zhang::{intrinsics_from_homographies, pose_from_homography};
+use crate::camera::CameraModel;
+use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+
+/// One view of the board: its corners on the board (mm, z = 0) and where they
+/// were found in the image (px).
+#[derive(Debug, Clone, PartialEq)]
+pub struct BoardView {
+    /// Corner positions on the board, mm.
+    pub board_mm: Vec<Point2<f64>>,
+    /// Corner positions in the image, px.
+    pub image_px: Vec<Point2<f64>>,
+}
+
+/// Names of the distortion coefficients, in OpenCV order.
+pub const DISTORTION_NAMES: [&str; 5] = ["k1", "k2", "p1", "p2", "k3"];
+
+/// The result of a calibration.
+#[derive(Debug, Clone)]
+pub struct CameraCalibration {
+    /// The camera.
+    pub camera: CameraModel,
+    /// Board -> camera pose of each view.
+    pub poses: Vec<Isometry3<f64>>,
+    /// Root mean square reprojection error over all corners, px.
+    pub rms_px: f64,
+    /// RMS reprojection error of each view, px.
+    pub view_rms_px: Vec<f64>,
+    /// LM iterations.
+    pub iterations: usize,
+}
+
+/// Intrinsic parameters in solver order: fx, fy, cx, cy, k1, k2, p1, p2, k3.
+pub(crate) fn intrinsic_vector(c: &CameraModel) -> [f64; 9] {
+    let d = c.distortion;
+    [c.fx, c.fy, c.cx, c.cy, d[0], d[1], d[2], d[3], d[4]]
+}
+
+pub(crate) fn camera_from(v: &[f64; 9], width: usize, height: usize) -> CameraModel {
+    CameraModel {
+        width,
+        height,
+        fx: v[0],
+        fy: v[1],
+        cx: v[2],
+        cy: v[3],
+        distortion: [v[4], v[5], v[6], v[7], v[8]],
+    }
+}
+
+pub(crate) fn pose_vector(p: &Isometry3<f64>) -> [f64; 6] {
+    let r = p.rotation.scaled_axis();
+    let t = p.translation.vector;
+    [r.x, r.y, r.z, t.x, t.y, t.z]
+}
+
+pub(crate) fn pose_from(v: &[f64]) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::new(v[3], v[4], v[5]),
+        UnitQuaternion::from_scaled_axis(Vector3::new(v[0], v[1], v[2])),
+    )
+}
+
+/// Reprojection residuals (px, u then v per corner) of one view.
+pub(crate) fn view_residuals(camera: &CameraModel, pose: &Isometry3<f64>, view: &BoardView, out: &mut Vec<f64>) {
+    for (b, m) in view.board_mm.iter().zip(&view.image_px) {
+        let c = pose * Point3::new(b.x, b.y, 0.0);
+        match camera.project(&c) {
+            Some(p) => {
+                out.push(p.x - m.x);
+                out.push(p.y - m.y);
+            }
+            // Behind the camera: a large, smooth penalty steers the solver back.
+            None => {
+                out.push(1e4);
+                out.push(1e4);
+            }
+        }
+    }
+}
+
+/// Closed-form start: Zhang's K and poses, zero distortion.
+pub fn initial_guess(views: &[BoardView], width: usize, height: usize) -> Result<(CameraModel, Vec<Isometry3<f64>>), String> {
+    if views.len() < 3 {
+        return Err(format!("{} usable views; calibration needs at least 3", views.len()));
+    }
+    let homographies: Vec<Matrix3<f64>> = views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| homography(&v.board_mm, &v.image_px).ok_or_else(|| format!("view {i}: corners are degenerate (collinear?)")))
+        .collect::<Result<_, _>>()?;
+    let k = intrinsics_from_homographies(&homographies)
+        .ok_or("the views do not determine the intrinsics (boards parallel to each other, or too few orientations)")?;
+    let camera = CameraModel {
+        width,
+        height,
+        fx: k[(0, 0)],
+        fy: k[(1, 1)],
+        cx: k[(0, 2)],
+        cy: k[(1, 2)],
+        distortion: [0.0; 5],
+    };
+    let poses = homographies
+        .iter()
+        .enumerate()
+        .map(|(i, h)| {
+            let (r, t) = pose_from_homography(&k, h).ok_or_else(|| format!("view {i}: no pose"))?;
+            Ok(Isometry3::from_parts(Translation3::from(t), UnitQuaternion::from_rotation_matrix(&r)))
+        })
+        .collect::<Result<Vec<_>, String>>()?;
+    Ok((camera, poses))
+}
+
+struct MonoProblem<'a> {
+    views: &'a [BoardView],
+    free: Vec<usize>,
+    fixed: [f64; 9],
+    size: (usize, usize),
+}
+
+impl MonoProblem<'_> {
+    fn intrinsics(&self, x: &DVector<f64>) -> [f64; 9] {
+        let mut v = self.fixed;
+        for (k, &i) in self.free.iter().enumerate() {
+            v[i] = x[k];
+        }
+        v
+    }
+
+    fn view_block(&self, x: &DVector<f64>, view: usize) -> Vec<f64> {
+        let camera = camera_from(&self.intrinsics(x), self.size.0, self.size.1);
+        let o = self.free.len() + 6 * view;
+        let pose = pose_from(&x.as_slice()[o..o + 6]);
+        let mut r = Vec::new();
+        view_residuals(&camera, &pose, &self.views[view], &mut r);
+        r
+    }
+}
+
+impl LeastSquares for MonoProblem<'_> {
+    fn residuals(&self, x: &DVector<f64>) -> DVector<f64> {
+        DVector::from_vec((0..self.views.len()).flat_map(|v| self.view_block(x, v)).collect())
+    }
+
+    fn jacobian(&self, x: &DVector<f64>) -> DMatrix<f64> {
+        let rows: usize = self.views.iter().map(|v| 2 * v.board_mm.len()).sum();
+        let mut j = DMatrix::zeros(rows, x.len());
+        let mut row = 0;
+        for v in 0..self.views.len() {
+            let n = 2 * self.views[v].board_mm.len();
+            // Each view depends on the intrinsics and its own pose only.
+            let columns = (0..self.free.len()).chain(self.free.len() + 6 * v..self.free.len() + 6 * v + 6);
+            for c in columns {
+                let h = 1e-6 * x[c].abs().max(1e-2);
+                let (mut plus, mut minus) = (x.clone(), x.clone());
+                plus[c] += h;
+                minus[c] -= h;
+                let (a, b) = (self.view_block(&plus, v), self.view_block(&minus, v));
+                for k in 0..n {
+                    j[(row + k, c)] = (a[k] - b[k]) / (2.0 * h);
+                }
+            }
+            row += n;
+        }
+        j
+    }
+}
+
+/// Calibrates one camera from board views. `free_distortion` says which of k1,
+/// k2, p1, p2, k3 are estimated (the others stay 0).
+pub fn calibrate_camera(views: &[BoardView], width: usize, height: usize, free_distortion: [bool; 5]) -> Result<CameraCalibration, String> {
+    for (i, v) in views.iter().enumerate() {
+        if v.board_mm.len() != v.image_px.len() || v.board_mm.len() < 4 {
+            return Err(format!("view {i}: {} board points for {} image points (need 4+ pairs)", v.board_mm.len(), v.image_px.len()));
+        }
+    }
+    let (start, poses) = initial_guess(views, width, height)?;
+    let fixed = intrinsic_vector(&start);
+    let free: Vec<usize> = (0..4).chain((0..5).filter(|&d| free_distortion[d]).map(|d| d + 4)).collect();
+    let problem = MonoProblem {
+        views,
+        free: free.clone(),
+        fixed,
+        size: (width, height),
+    };
+    let mut x0: Vec<f64> = free.iter().map(|&i| fixed[i]).collect();
+    poses.iter().for_each(|p| x0.extend(pose_vector(p)));
+    let report = levenberg_marquardt(&problem, DVector::from_vec(x0), 200, 1e-14);
+    let camera = camera_from(&problem.intrinsics(&report.x), width, height);
+    let poses: Vec<Isometry3<f64>> = (0..views.len())
+        .map(|v| pose_from(&report.x.as_slice()[free.len() + 6 * v..free.len() + 6 * v + 6]))
+        .collect();
+    let view_rms_px: Vec<f64> = (0..views.len())
+        .map(|v| {
+            let r = problem.view_block(&report.x, v);
+            (r.iter().map(|e| e * e).sum::<f64>() / (r.len() / 2) as f64).sqrt()
+        })
+        .collect();
+    let corners: usize = views.iter().map(|v| v.board_mm.len()).sum();
+    Ok(CameraCalibration {
+        camera,
+        poses,
+        rms_px: (report.cost / corners as f64).sqrt(),
+        view_rms_px,
+        iterations: report.iterations,
+    })
+}
+
+/// Rotation error between two rotations, deg.
+pub fn rotation_error_deg(a: &Rotation3<f64>, b: &Rotation3<f64>) -> f64 {
+    // Via quaternions: the trace formula's acos turns NaN for tiny angles.
+    UnitQuaternion::from_rotation_matrix(a).angle_to(&UnitQuaternion::from_rotation_matrix(b)).to_degrees()
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    pub(crate) fn true_camera() -> CameraModel {
+        CameraModel {
+            width: 800,
+            height: 600,
+            fx: 1333.3,
+            fy: 1334.4,
+            cx: 403.2,
+            cy: 297.6,
+            distortion: [-0.118, 0.152, 0.00061, -0.00042, 0.0],
+        }
+    }
+
+    pub(crate) fn board() -> Vec<Point2<f64>> {
+        (0..6).flat_map(|r| (0..9).map(move |c| Point2::new(c as f64 * 25.0, r as f64 * 25.0))).collect()
+    }
+
+    pub(crate) fn true_poses() -> Vec<Isometry3<f64>> {
+        [
+            ([0.3, -0.2, 0.1], [-100.0, -60.0, 520.0]),
+            ([-0.25, 0.35, -0.2], [-90.0, -80.0, 600.0]),
+            ([0.1, 0.4, 0.3], [-120.0, -50.0, 480.0]),
+            ([-0.4, -0.1, 0.0], [-80.0, -70.0, 650.0]),
+            ([0.05, 0.05, 1.2], [20.0, -90.0, 560.0]),
+        ]
+        .iter()
+        .map(|(r, t)| pose_from(&[r[0], r[1], r[2], t[0], t[1], t[2]]))
+        .collect()
+    }
+
+    pub(crate) fn views_of(camera: &CameraModel, poses: &[Isometry3<f64>]) -> Vec<BoardView> {
+        poses
+            .iter()
+            .map(|pose| BoardView {
+                board_mm: board(),
+                image_px: board().iter().map(|b| camera.project(&(pose * Point3::new(b.x, b.y, 0.0))).unwrap()).collect(),
+            })
+            .collect()
+    }
+
+    #[test]
+    fn recovers_distortion_and_intrinsics_from_exact_corners() {
+        let truth = true_camera();
+        let views = views_of(&truth, &true_poses());
+        let c = calibrate_camera(&views, 800, 600, [true, true, true, true, false]).unwrap();
+        assert!(c.rms_px < 1e-8, "{}", c.rms_px);
+        assert!((c.camera.fx - truth.fx).abs() < 1e-6 && (c.camera.cy - truth.cy).abs() < 1e-6, "{:?}", c.camera);
+        for d in 0..4 {
+            assert!((c.camera.distortion[d] - truth.distortion[d]).abs() < 1e-8, "{:?}", c.camera.distortion);
+        }
+        let r = rotation_error_deg(&c.poses[2].rotation.to_rotation_matrix(), &true_poses()[2].rotation.to_rotation_matrix());
+        assert!(r < 1e-5, "{r} deg");
+    }
+
+    #[test]
+    fn too_few_or_degenerate_views_are_errors() {
+        let views = views_of(&true_camera(), &true_poses());
+        assert!(calibrate_camera(&views[..2], 800, 600, [true; 5]).unwrap_err().contains("at least 3"));
+        let same = vec![views[0].clone(), views[0].clone(), views[0].clone()];
+        assert!(calibrate_camera(&same, 800, 600, [true; 5]).is_err());
+    }
+}

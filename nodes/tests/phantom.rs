@@ -413,3 +413,51 @@ fn same_seed_gives_the_same_bytes_on_any_thread_count() {
         fusegraph_engine::hash::hash_path(&t.path().join("other")).unwrap()
     );
 }
+
+#[test]
+fn the_detector_finds_every_usable_board_in_the_right_order() {
+    use fusegraph_nodes::calib::find_chessboard;
+    let (dir, truth) = phantom();
+    let left_to_right = isometry_from_matrix(&truth.rig.left_to_right);
+    let [cols, rows] = truth.chessboard.pattern;
+    let corners: Vec<Point3<f64>> = (0..rows)
+        .flat_map(|r| (0..cols).map(move |c| (c, r)))
+        .map(|(c, r)| {
+            Point3::new(
+                c as f64 * truth.chessboard.square_mm,
+                r as f64 * truth.chessboard.square_mm,
+                0.0,
+            )
+        })
+        .collect();
+    let (mut found, mut worst) = (0, 0.0f64);
+    for pair in &truth.calibration {
+        let board_to_left = isometry_from_matrix(&pair.board_to_left_camera);
+        for (file, camera, board_to_camera) in [
+            (&pair.left, &truth.rig.left, board_to_left),
+            (&pair.right, &truth.rig.right, left_to_right * board_to_left),
+        ] {
+            let img = rgb(&dir.join(file));
+            let grey: Vec<f32> = img
+                .pixels()
+                .map(|p| p.0.iter().map(|&c| c as f32).sum::<f32>() / 765.0)
+                .collect();
+            match find_chessboard(&grey, camera.width, camera.height, cols, rows) {
+                Ok(found_corners) => {
+                    // Whatever is returned must be right, in the truth's order.
+                    for (k, c) in found_corners.iter().enumerate() {
+                        let p = camera.project(&(board_to_camera * corners[k])).unwrap();
+                        let err = (c - p).norm();
+                        worst = worst.max(err);
+                        assert!(err < 0.5, "{file}: corner {k} off by {err} px");
+                    }
+                    found += 1;
+                }
+                Err(why) => assert!(!pair.detectable, "{file}: usable board not found: {why}"),
+            }
+        }
+    }
+    eprintln!("{found} boards found, worst corner error {worst:.3} px");
+    let usable = truth.calibration.iter().filter(|p| p.detectable).count();
+    assert!(found >= 2 * usable);
+}

@@ -6,7 +6,10 @@ use super::homography::homography;
 use super::lm::{LeastSquares, levenberg_marquardt};
 use super::zhang::{intrinsics_from_homographies, pose_from_homography};
 use crate::camera::CameraModel;
-use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{
+    DMatrix, DVector, Isometry3, Matrix3, Point2, Point3, Rotation3, Translation3, UnitQuaternion,
+    Vector3,
+};
 
 /// One view of the board: its corners on the board (mm, z = 0) and where they
 /// were found in the image (px).
@@ -68,7 +71,12 @@ pub(crate) fn pose_from(v: &[f64]) -> Isometry3<f64> {
 }
 
 /// Reprojection residuals (px, u then v per corner) of one view.
-pub(crate) fn view_residuals(camera: &CameraModel, pose: &Isometry3<f64>, view: &BoardView, out: &mut Vec<f64>) {
+pub(crate) fn view_residuals(
+    camera: &CameraModel,
+    pose: &Isometry3<f64>,
+    view: &BoardView,
+    out: &mut Vec<f64>,
+) {
     for (b, m) in view.board_mm.iter().zip(&view.image_px) {
         let c = pose * Point3::new(b.x, b.y, 0.0);
         match camera.project(&c) {
@@ -86,14 +94,24 @@ pub(crate) fn view_residuals(camera: &CameraModel, pose: &Isometry3<f64>, view: 
 }
 
 /// Closed-form start: Zhang's K and poses, zero distortion.
-pub fn initial_guess(views: &[BoardView], width: usize, height: usize) -> Result<(CameraModel, Vec<Isometry3<f64>>), String> {
+pub fn initial_guess(
+    views: &[BoardView],
+    width: usize,
+    height: usize,
+) -> Result<(CameraModel, Vec<Isometry3<f64>>), String> {
     if views.len() < 3 {
-        return Err(format!("{} usable views; calibration needs at least 3", views.len()));
+        return Err(format!(
+            "{} usable views; calibration needs at least 3",
+            views.len()
+        ));
     }
     let homographies: Vec<Matrix3<f64>> = views
         .iter()
         .enumerate()
-        .map(|(i, v)| homography(&v.board_mm, &v.image_px).ok_or_else(|| format!("view {i}: corners are degenerate (collinear?)")))
+        .map(|(i, v)| {
+            homography(&v.board_mm, &v.image_px)
+                .ok_or_else(|| format!("view {i}: corners are degenerate (collinear?)"))
+        })
         .collect::<Result<_, _>>()?;
     let k = intrinsics_from_homographies(&homographies)
         .ok_or("the views do not determine the intrinsics (boards parallel to each other, or too few orientations)")?;
@@ -111,7 +129,10 @@ pub fn initial_guess(views: &[BoardView], width: usize, height: usize) -> Result
         .enumerate()
         .map(|(i, h)| {
             let (r, t) = pose_from_homography(&k, h).ok_or_else(|| format!("view {i}: no pose"))?;
-            Ok(Isometry3::from_parts(Translation3::from(t), UnitQuaternion::from_rotation_matrix(&r)))
+            Ok(Isometry3::from_parts(
+                Translation3::from(t),
+                UnitQuaternion::from_rotation_matrix(&r),
+            ))
         })
         .collect::<Result<Vec<_>, String>>()?;
     Ok((camera, poses))
@@ -145,7 +166,11 @@ impl MonoProblem<'_> {
 
 impl LeastSquares for MonoProblem<'_> {
     fn residuals(&self, x: &DVector<f64>) -> DVector<f64> {
-        DVector::from_vec((0..self.views.len()).flat_map(|v| self.view_block(x, v)).collect())
+        DVector::from_vec(
+            (0..self.views.len())
+                .flat_map(|v| self.view_block(x, v))
+                .collect(),
+        )
     }
 
     fn jacobian(&self, x: &DVector<f64>) -> DMatrix<f64> {
@@ -155,7 +180,8 @@ impl LeastSquares for MonoProblem<'_> {
         for v in 0..self.views.len() {
             let n = 2 * self.views[v].board_mm.len();
             // Each view depends on the intrinsics and its own pose only.
-            let columns = (0..self.free.len()).chain(self.free.len() + 6 * v..self.free.len() + 6 * v + 6);
+            let columns =
+                (0..self.free.len()).chain(self.free.len() + 6 * v..self.free.len() + 6 * v + 6);
             for c in columns {
                 let h = 1e-6 * x[c].abs().max(1e-2);
                 let (mut plus, mut minus) = (x.clone(), x.clone());
@@ -174,15 +200,26 @@ impl LeastSquares for MonoProblem<'_> {
 
 /// Calibrates one camera from board views. `free_distortion` says which of k1,
 /// k2, p1, p2, k3 are estimated (the others stay 0).
-pub fn calibrate_camera(views: &[BoardView], width: usize, height: usize, free_distortion: [bool; 5]) -> Result<CameraCalibration, String> {
+pub fn calibrate_camera(
+    views: &[BoardView],
+    width: usize,
+    height: usize,
+    free_distortion: [bool; 5],
+) -> Result<CameraCalibration, String> {
     for (i, v) in views.iter().enumerate() {
         if v.board_mm.len() != v.image_px.len() || v.board_mm.len() < 4 {
-            return Err(format!("view {i}: {} board points for {} image points (need 4+ pairs)", v.board_mm.len(), v.image_px.len()));
+            return Err(format!(
+                "view {i}: {} board points for {} image points (need 4+ pairs)",
+                v.board_mm.len(),
+                v.image_px.len()
+            ));
         }
     }
     let (start, poses) = initial_guess(views, width, height)?;
     let fixed = intrinsic_vector(&start);
-    let free: Vec<usize> = (0..4).chain((0..5).filter(|&d| free_distortion[d]).map(|d| d + 4)).collect();
+    let free: Vec<usize> = (0..4)
+        .chain((0..5).filter(|&d| free_distortion[d]).map(|d| d + 4))
+        .collect();
     let problem = MonoProblem {
         views,
         free: free.clone(),
@@ -215,7 +252,9 @@ pub fn calibrate_camera(views: &[BoardView], width: usize, height: usize, free_d
 /// Rotation error between two rotations, deg.
 pub fn rotation_error_deg(a: &Rotation3<f64>, b: &Rotation3<f64>) -> f64 {
     // Via quaternions: the trace formula's acos turns NaN for tiny angles.
-    UnitQuaternion::from_rotation_matrix(a).angle_to(&UnitQuaternion::from_rotation_matrix(b)).to_degrees()
+    UnitQuaternion::from_rotation_matrix(a)
+        .angle_to(&UnitQuaternion::from_rotation_matrix(b))
+        .to_degrees()
 }
 
 #[cfg(test)]
@@ -235,7 +274,9 @@ pub(crate) mod tests {
     }
 
     pub(crate) fn board() -> Vec<Point2<f64>> {
-        (0..6).flat_map(|r| (0..9).map(move |c| Point2::new(c as f64 * 25.0, r as f64 * 25.0))).collect()
+        (0..6)
+            .flat_map(|r| (0..9).map(move |c| Point2::new(c as f64 * 25.0, r as f64 * 25.0)))
+            .collect()
     }
 
     pub(crate) fn true_poses() -> Vec<Isometry3<f64>> {
@@ -256,7 +297,14 @@ pub(crate) mod tests {
             .iter()
             .map(|pose| BoardView {
                 board_mm: board(),
-                image_px: board().iter().map(|b| camera.project(&(pose * Point3::new(b.x, b.y, 0.0))).unwrap()).collect(),
+                image_px: board()
+                    .iter()
+                    .map(|b| {
+                        camera
+                            .project(&(pose * Point3::new(b.x, b.y, 0.0)))
+                            .unwrap()
+                    })
+                    .collect(),
             })
             .collect()
     }
@@ -267,18 +315,33 @@ pub(crate) mod tests {
         let views = views_of(&truth, &true_poses());
         let c = calibrate_camera(&views, 800, 600, [true, true, true, true, false]).unwrap();
         assert!(c.rms_px < 1e-8, "{}", c.rms_px);
-        assert!((c.camera.fx - truth.fx).abs() < 1e-6 && (c.camera.cy - truth.cy).abs() < 1e-6, "{:?}", c.camera);
+        assert!(
+            (c.camera.fx - truth.fx).abs() < 1e-6 && (c.camera.cy - truth.cy).abs() < 1e-6,
+            "{:?}",
+            c.camera
+        );
         for d in 0..4 {
-            assert!((c.camera.distortion[d] - truth.distortion[d]).abs() < 1e-8, "{:?}", c.camera.distortion);
+            assert!(
+                (c.camera.distortion[d] - truth.distortion[d]).abs() < 1e-8,
+                "{:?}",
+                c.camera.distortion
+            );
         }
-        let r = rotation_error_deg(&c.poses[2].rotation.to_rotation_matrix(), &true_poses()[2].rotation.to_rotation_matrix());
+        let r = rotation_error_deg(
+            &c.poses[2].rotation.to_rotation_matrix(),
+            &true_poses()[2].rotation.to_rotation_matrix(),
+        );
         assert!(r < 1e-5, "{r} deg");
     }
 
     #[test]
     fn too_few_or_degenerate_views_are_errors() {
         let views = views_of(&true_camera(), &true_poses());
-        assert!(calibrate_camera(&views[..2], 800, 600, [true; 5]).unwrap_err().contains("at least 3"));
+        assert!(
+            calibrate_camera(&views[..2], 800, 600, [true; 5])
+                .unwrap_err()
+                .contains("at least 3")
+        );
         let same = vec![views[0].clone(), views[0].clone(), views[0].clone()];
         assert!(calibrate_camera(&same, 800, 600, [true; 5]).is_err());
     }

@@ -28,7 +28,12 @@ pub struct LmReport {
 
 /// Minimises from `x0`; stops when an accepted step lowers the cost by less than
 /// `tolerance` relative, or after `max_iterations`.
-pub fn levenberg_marquardt(problem: &impl LeastSquares, x0: DVector<f64>, max_iterations: usize, tolerance: f64) -> LmReport {
+pub fn levenberg_marquardt(
+    problem: &impl LeastSquares,
+    x0: DVector<f64>,
+    max_iterations: usize,
+    tolerance: f64,
+) -> LmReport {
     let mut x = x0;
     let mut r = problem.residuals(&x);
     let mut cost = r.norm_squared();
@@ -98,8 +103,13 @@ mod tests {
 
     #[test]
     fn finds_the_rosenbrock_minimum() {
-        let report = levenberg_marquardt(&Rosenbrock, DVector::from_vec(vec![-1.2, 1.0]), 200, 1e-15);
-        assert!((report.x[0] - 1.0).abs() < 1e-6 && (report.x[1] - 1.0).abs() < 1e-6, "{:?}", report.x);
+        let report =
+            levenberg_marquardt(&Rosenbrock, DVector::from_vec(vec![-1.2, 1.0]), 200, 1e-15);
+        assert!(
+            (report.x[0] - 1.0).abs() < 1e-6 && (report.x[1] - 1.0).abs() < 1e-6,
+            "{:?}",
+            report.x
+        );
         assert!(report.cost < 1e-12);
     }
 }

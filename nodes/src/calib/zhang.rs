@@ -60,13 +60,20 @@ pub fn intrinsics_from_homographies(homographies: &[Matrix3<f64>]) -> Option<Mat
 
 /// The pose (plane -> camera rotation and translation, mm) of a view with
 /// homography `h` for intrinsics `k`; the rotation is the nearest true rotation.
-pub fn pose_from_homography(k: &Matrix3<f64>, h: &Matrix3<f64>) -> Option<(Rotation3<f64>, Vector3<f64>)> {
+pub fn pose_from_homography(
+    k: &Matrix3<f64>,
+    h: &Matrix3<f64>,
+) -> Option<(Rotation3<f64>, Vector3<f64>)> {
     let k_inv = k.try_inverse()?;
     let m = k_inv * h;
     let scale = 1.0 / m.column(0).norm();
     // The plane must be in front of the camera (t_z > 0).
     let sign = if m[(2, 2)] * scale < 0.0 { -1.0 } else { 1.0 };
-    let (r1, r2, t) = (m.column(0) * scale * sign, m.column(1) * scale * sign, m.column(2) * scale * sign);
+    let (r1, r2, t) = (
+        m.column(0) * scale * sign,
+        m.column(1) * scale * sign,
+        m.column(2) * scale * sign,
+    );
     let r = Matrix3::from_columns(&[r1, r2, r1.cross(&r2)]);
     Some((Rotation3::from_matrix(&r), t))
 }
@@ -80,12 +87,26 @@ mod tests {
     #[test]
     fn recovers_k_exactly_from_exact_views() {
         let k = Matrix3::new(1333.3, 0.0, 403.2, 0.0, 1334.4, 297.6, 0.0, 0.0, 1.0);
-        let plane: Vec<Point2<f64>> = (0..9).flat_map(|i| (0..6).map(move |j| Point2::new(i as f64 * 25.0, j as f64 * 25.0))).collect();
+        let plane: Vec<Point2<f64>> = (0..9)
+            .flat_map(|i| (0..6).map(move |j| Point2::new(i as f64 * 25.0, j as f64 * 25.0)))
+            .collect();
         let poses = [
-            (Vector3::new(0.3, -0.2, 0.1), Vector3::new(-100.0, -60.0, 520.0)),
-            (Vector3::new(-0.25, 0.35, -0.2), Vector3::new(-90.0, -80.0, 600.0)),
-            (Vector3::new(0.1, 0.4, 0.3), Vector3::new(-120.0, -50.0, 480.0)),
-            (Vector3::new(-0.4, -0.1, 0.0), Vector3::new(-80.0, -70.0, 650.0)),
+            (
+                Vector3::new(0.3, -0.2, 0.1),
+                Vector3::new(-100.0, -60.0, 520.0),
+            ),
+            (
+                Vector3::new(-0.25, 0.35, -0.2),
+                Vector3::new(-90.0, -80.0, 600.0),
+            ),
+            (
+                Vector3::new(0.1, 0.4, 0.3),
+                Vector3::new(-120.0, -50.0, 480.0),
+            ),
+            (
+                Vector3::new(-0.4, -0.1, 0.0),
+                Vector3::new(-80.0, -70.0, 650.0),
+            ),
         ];
         let homographies: Vec<Matrix3<f64>> = poses
             .iter()

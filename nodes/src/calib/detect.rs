@@ -1,0 +1,493 @@
+//! Chessboard detection: saddle-point candidates, a grid grown from seeds by
+//! prediction, and checks that refuse anything but the whole board. Written
+//! here: calib-targets cannot be told the board size and its labels can shift
+//! (see ../shared/CRATES.md), and a detector must never return wrong corners.
+//!
+//! Corners come out row by row (`cols` per row), ordered so that the board is
+//! seen from its printed side with the first row's outer square dark: the same
+//! physical corner gets the same index in both images of a stereo pair. That
+//! needs a pattern with one odd and one even count of inner corners (e.g. 9 x 6);
+//! symmetric patterns are refused.
+
+use super::subpixel::{refine_corner, window_for_square};
+use nalgebra::{Point2, Vector2};
+use std::collections::HashMap;
+
+/// Smooths with a Gaussian of `sigma` px (separable, clamped borders).
+fn gaussian(img: &[f32], w: usize, h: usize, sigma: f64) -> Vec<f32> {
+    let r = (3.0 * sigma).ceil() as isize;
+    let k: Vec<f32> = (-r..=r)
+        .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp() as f32)
+        .collect();
+    let total: f32 = k.iter().sum();
+    let k: Vec<f32> = k.iter().map(|x| x / total).collect();
+    let mut tmp = vec![0.0f32; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let mut acc = 0.0;
+            for (i, kw) in k.iter().enumerate() {
+                let sx = (x as isize + i as isize - r).clamp(0, w as isize - 1) as usize;
+                acc += kw * img[y * w + sx];
+            }
+            tmp[y * w + x] = acc;
+        }
+    }
+    let mut out = vec![0.0f32; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let mut acc = 0.0;
+            for (i, kw) in k.iter().enumerate() {
+                let sy = (y as isize + i as isize - r).clamp(0, h as isize - 1) as usize;
+                acc += kw * tmp[sy * w + x];
+            }
+            out[y * w + x] = acc;
+        }
+    }
+    out
+}
+
+/// A candidate corner: position (px) and saddle strength.
+#[derive(Debug, Clone, Copy)]
+struct Candidate {
+    p: Point2<f64>,
+    strength: f32,
+}
+
+/// Saddle points: local maxima of -det(Hessian) of the smoothed image that look
+/// like an X-junction (four alternations around a small circle).
+fn candidates(grey: &[f32], w: usize, h: usize) -> Vec<Candidate> {
+    let s = gaussian(grey, w, h, 1.5);
+    let at = |x: usize, y: usize| s[y * w + x];
+    let mut response = vec![0.0f32; w * h];
+    for y in 1..h - 1 {
+        for x in 1..w - 1 {
+            let c = at(x, y);
+            let ixx = at(x + 1, y) - 2.0 * c + at(x - 1, y);
+            let iyy = at(x, y + 1) - 2.0 * c + at(x, y - 1);
+            let ixy =
+                0.25 * (at(x + 1, y + 1) - at(x - 1, y + 1) - at(x + 1, y - 1) + at(x - 1, y - 1));
+            response[y * w + x] = (ixy * ixy - ixx * iyy).max(0.0);
+        }
+    }
+    let mut sorted: Vec<f32> = response.iter().copied().filter(|&r| r > 0.0).collect();
+    if sorted.is_empty() {
+        return Vec::new();
+    }
+    sorted.sort_by(f32::total_cmp);
+    let threshold = 0.02 * sorted[(sorted.len() as f64 * 0.999) as usize];
+    let radius = 4usize;
+    let mut out = Vec::new();
+    for y in radius..h - radius {
+        for x in radius..w - radius {
+            let r = response[y * w + x];
+            if r <= threshold {
+                continue;
+            }
+            let is_max = (y - radius..=y + radius).all(|yy| {
+                (x - radius..=x + radius).all(|xx| {
+                    (xx, yy) == (x, y)
+                        || response[yy * w + xx] < r
+                        || (response[yy * w + xx] == r && (yy, xx) > (y, x))
+                })
+            });
+            if is_max && looks_like_x(grey, w, h, x as f64, y as f64) {
+                out.push(Candidate {
+                    p: Point2::new(x as f64, y as f64),
+                    strength: r,
+                });
+            }
+        }
+    }
+    out.sort_by(|a, b| b.strength.total_cmp(&a.strength));
+    out.truncate(3000);
+    out
+}
+
+/// Whether the ring of radius 3.5 px around (x, y) alternates dark-light four
+/// times (an X-junction), not twice (an edge) or never (flat or a blob).
+fn looks_like_x(grey: &[f32], w: usize, h: usize, x: f64, y: f64) -> bool {
+    let n = 32;
+    let ring: Vec<f32> = (0..n)
+        .filter_map(|i| {
+            let a = std::f64::consts::TAU * i as f64 / n as f64;
+            let (sx, sy) = ((x + 3.5 * a.cos()).round(), (y + 3.5 * a.sin()).round());
+            (sx >= 0.0 && sy >= 0.0 && (sx as usize) < w && (sy as usize) < h)
+                .then(|| grey[sy as usize * w + sx as usize])
+        })
+        .collect();
+    if ring.len() < n {
+        return false;
+    }
+    let (lo, hi) = ring
+        .iter()
+        .fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
+    if hi - lo < 0.08 {
+        return false;
+    }
+    let mid = 0.5 * (lo + hi);
+    let sides: Vec<bool> = ring.iter().map(|&v| v > mid).collect();
+    let changes = (0..n).filter(|&i| sides[i] != sides[(i + 1) % n]).count();
+    changes == 4
+}
+
+/// A grid grown from a seed: grid coordinates -> candidate index.
+fn grow(
+    cands: &[Candidate],
+    seed: usize,
+    limit: (usize, usize),
+) -> Option<HashMap<(i32, i32), usize>> {
+    let s = cands[seed].p;
+    let mut near: Vec<(f64, usize)> = cands
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| *i != seed)
+        .map(|(i, c)| ((c.p - s).norm(), i))
+        .collect();
+    near.sort_by(|a, b| a.0.total_cmp(&b.0));
+    near.truncate(8);
+    let (d1, n1) = *near.first()?;
+    let u = cands[n1].p - s;
+    let (_, n2) = *near.iter().skip(1).find(|(d, i)| {
+        let v = cands[*i].p - s;
+        let cos = u.dot(&v) / (u.norm() * v.norm());
+        cos.abs() < 0.6 && *d < 2.0 * d1
+    })?;
+    let mut grid: HashMap<(i32, i32), usize> = HashMap::new();
+    let mut used = vec![false; cands.len()];
+    for (key, idx) in [((0, 0), seed), ((1, 0), n1), ((0, 1), n2)] {
+        grid.insert(key, idx);
+        used[idx] = true;
+    }
+    let mut frontier: Vec<(i32, i32)> = grid.keys().copied().collect();
+    let max_cells = (limit.0 + 2) * (limit.1 + 2);
+    while let Some(cell) = frontier.pop() {
+        if grid.len() > max_cells {
+            return None;
+        }
+        for dir in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
+            let target = (cell.0 + dir.0, cell.1 + dir.1);
+            if grid.contains_key(&target) {
+                continue;
+            }
+            let p = |k: &(i32, i32)| grid.get(k).map(|&i| cands[i].p);
+            let here = p(&cell)?;
+            // Extrapolate along the line if possible, else copy a parallel step.
+            let back = (cell.0 - dir.0, cell.1 - dir.1);
+            let step: Option<Vector2<f64>> = p(&back).map(|b| here - b).or_else(|| {
+                let side = (dir.1, dir.0);
+                [side, (-side.0, -side.1)].iter().find_map(|sd| {
+                    let (a, b) = (
+                        (cell.0 + sd.0, cell.1 + sd.1),
+                        (cell.0 + sd.0 + dir.0, cell.1 + sd.1 + dir.1),
+                    );
+                    Some(p(&b)? - p(&a)?)
+                })
+            });
+            let step = match step {
+                Some(s) => s,
+                None if dir.1 == 0 => u * dir.0 as f64,
+                None => (cands[n2].p - s) * dir.1 as f64,
+            };
+            let predicted = here + step;
+            let tolerance = 0.3 * step.norm();
+            let best = cands
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| !used[*i])
+                .map(|(i, c)| ((c.p - predicted).norm(), i))
+                .filter(|(d, _)| *d < tolerance)
+                .min_by(|a, b| a.0.total_cmp(&b.0));
+            if let Some((_, i)) = best {
+                used[i] = true;
+                grid.insert(target, i);
+                frontier.push(target);
+            }
+        }
+    }
+    Some(grid)
+}
+
+/// Mean of a 3 x 3 patch at (x, y), if inside the image.
+fn patch(grey: &[f32], w: usize, h: usize, p: Point2<f64>) -> Option<f32> {
+    let (x, y) = (p.x.round() as isize, p.y.round() as isize);
+    if x < 1 || y < 1 || x + 1 >= w as isize || y + 1 >= h as isize {
+        return None;
+    }
+    let mut sum = 0.0;
+    for dy in -1..=1 {
+        for dx in -1..=1 {
+            sum += grey[(y + dy) as usize * w + (x + dx) as usize];
+        }
+    }
+    Some(sum / 9.0)
+}
+
+/// Finds the whole `cols x rows` board (inner corners) in a grey image (0..1,
+/// row-major) and returns its corners to sub-pixel accuracy, or why not.
+pub fn find_chessboard(
+    grey: &[f32],
+    w: usize,
+    h: usize,
+    cols: usize,
+    rows: usize,
+) -> Result<Vec<Point2<f64>>, String> {
+    if cols < 2 || rows < 2 || (cols % 2) == (rows % 2) {
+        return Err(format!(
+            "pattern {cols} x {rows}: use one odd and one even count of inner corners, or the board's orientation is ambiguous"
+        ));
+    }
+    if w < 16 || h < 16 || grey.len() != w * h {
+        return Err("image too small".into());
+    }
+    let cands = candidates(grey, w, h);
+    if cands.len() < cols * rows {
+        return Err(format!(
+            "{} corner candidates, fewer than the {} inner corners",
+            cands.len(),
+            cols * rows
+        ));
+    }
+    let mut best_size = 0;
+    for seed in 0..cands.len().min(40) {
+        let Some(grid) = grow(&cands, seed, (cols, rows)) else {
+            continue;
+        };
+        best_size = best_size.max(grid.len());
+        // The board is the one full pattern-sized window of the grid; a stray
+        // candidate that the growth picked up beyond the board is left out, but
+        // if two windows fit (a whole extra row or column) the labels would be
+        // ambiguous, and the seed is given up.
+        let windows: Vec<(i32, i32, bool)> = full_windows(&grid, cols, rows);
+        let [(min_i, min_j, transpose)] = windows[..] else {
+            continue;
+        };
+        let at = |c: usize, r: usize| {
+            let (i, j) = if transpose { (r, c) } else { (c, r) };
+            cands[grid[&(min_i + i as i32, min_j + j as i32)]].p
+        };
+        let mut corners: Vec<Point2<f64>> = (0..rows)
+            .flat_map(|r| (0..cols).map(move |c| (c, r)))
+            .map(|(c, r)| at(c, r))
+            .collect();
+        if let Some(ordered) = orient(grey, w, h, &mut corners, cols, rows) {
+            return refine_all(grey, w, h, ordered, cols);
+        }
+    }
+    Err(format!(
+        "no complete {cols} x {rows} grid (largest grid grown: {best_size} corners)"
+    ))
+}
+
+/// Origins (and whether transposed) of every fully populated `cols x rows`
+/// window of the grid, in either orientation.
+fn full_windows(
+    grid: &HashMap<(i32, i32), usize>,
+    cols: usize,
+    rows: usize,
+) -> Vec<(i32, i32, bool)> {
+    let (min_i, max_i) = grid
+        .keys()
+        .fold((i32::MAX, i32::MIN), |(a, b), k| (a.min(k.0), b.max(k.0)));
+    let (min_j, max_j) = grid
+        .keys()
+        .fold((i32::MAX, i32::MIN), |(a, b), k| (a.min(k.1), b.max(k.1)));
+    let mut out = Vec::new();
+    for transpose in [false, true] {
+        let (ni, nj) = if transpose {
+            (rows as i32, cols as i32)
+        } else {
+            (cols as i32, rows as i32)
+        };
+        for i0 in min_i..=max_i - ni + 1 {
+            for j0 in min_j..=max_j - nj + 1 {
+                if (i0..i0 + ni).all(|i| (j0..j0 + nj).all(|j| grid.contains_key(&(i, j)))) {
+                    out.push((i0, j0, transpose));
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Puts the corners in the canonical order (see the module doc), or `None`
+/// when the squares do not alternate in colour like a chessboard's.
+fn orient(
+    grey: &[f32],
+    w: usize,
+    h: usize,
+    corners: &mut [Point2<f64>],
+    cols: usize,
+    rows: usize,
+) -> Option<Vec<Point2<f64>>> {
+    let get = |c: &[Point2<f64>], i: usize, j: usize| c[j * cols + i];
+    // Brightness at the centre of the inner square right of and below corner (i, j).
+    let centre_value = |c: &[Point2<f64>], i: usize, j: usize| {
+        patch(
+            grey,
+            w,
+            h,
+            Point2::from((get(c, i, j).coords + get(c, i + 1, j + 1).coords) * 0.5),
+        )
+    };
+    let values: Vec<f32> = (0..rows - 1)
+        .flat_map(|j| (0..cols - 1).map(move |i| (i, j)))
+        .map(|(i, j)| centre_value(corners, i, j))
+        .collect::<Option<_>>()?;
+    let mean = values.iter().sum::<f32>() / values.len() as f32;
+    let dark: Vec<bool> = values.iter().map(|&v| v < mean).collect();
+    let alternates = (0..rows - 1)
+        .all(|j| (0..cols - 1).all(|i| dark[j * (cols - 1) + i] == (dark[0] ^ ((i + j) % 2 == 1))));
+    if !alternates {
+        return None;
+    }
+    // Handedness: seen from the printed side, with columns to the right, rows
+    // run downwards (x right, y down in the image, as on the board).
+    let u = get(corners, 1, 0) - get(corners, 0, 0);
+    let v = get(corners, 0, 1) - get(corners, 0, 0);
+    let mut ordered: Vec<Point2<f64>> = corners.to_vec();
+    if u.x * v.y - u.y * v.x < 0.0 {
+        ordered = (0..rows)
+            .flat_map(|j| (0..cols).map(move |i| (i, j)))
+            .map(|(i, j)| get(corners, cols - 1 - i, j))
+            .collect();
+    }
+    // Of the two orders left (180 degrees apart) take the one whose square
+    // beyond corner 0 is dark; the inner square (0, 0) has the same colour
+    // (same parity), and with one odd and one even corner count the two
+    // orders disagree on it.
+    if centre_value(&ordered, 0, 0)? >= mean {
+        ordered.reverse();
+    }
+    Some(ordered)
+}
+
+fn refine_all(
+    grey: &[f32],
+    w: usize,
+    h: usize,
+    corners: Vec<Point2<f64>>,
+    cols: usize,
+) -> Result<Vec<Point2<f64>>, String> {
+    let spacing = corners
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| (k + 1) % cols != 0)
+        .map(|(k, p)| (corners[k + 1] - p).norm())
+        .fold(f64::INFINITY, f64::min);
+    let half = window_for_square(spacing);
+    corners
+        .iter()
+        .map(|p| {
+            refine_corner(grey, w, h, (p.x, p.y), half)
+                .map(|(x, y)| Point2::new(x, y))
+                .ok_or_else(|| format!("corner near ({:.1}, {:.1}) does not refine (too close to the border or blurred)", p.x, p.y))
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 9 x 6 board (squares `s` px, square (-1, -1) dark, white margin) drawn
+    /// with 4 x 4 supersampling after rotating by `angle` about `centre`, on a
+    /// mid-grey background; returns the image and the true corners in order.
+    fn board_image(
+        angle: f64,
+        s: f64,
+        centre: (f64, f64),
+        crop_right: usize,
+    ) -> (Vec<f32>, Vec<Point2<f64>>) {
+        let (w, h) = (640usize, 480usize);
+        let (sin, cos) = angle.sin_cos();
+        let origin = (
+            centre.0 - (4.0 * s * cos - 2.5 * s * sin),
+            centre.1 - (4.0 * s * sin + 2.5 * s * cos),
+        );
+        let to_image = |x: f64, y: f64| {
+            Point2::new(origin.0 + x * cos - y * sin, origin.1 + x * sin + y * cos)
+        };
+        let mut img = vec![0.5f32; w * h];
+        for py in 0..h {
+            for px in 0..w {
+                let mut acc = 0.0;
+                for sy in 0..4 {
+                    for sx in 0..4 {
+                        let (ix, iy) = (
+                            px as f64 + (sx as f64 + 0.5) / 4.0 - 0.5 - origin.0,
+                            py as f64 + (sy as f64 + 0.5) / 4.0 - 0.5 - origin.1,
+                        );
+                        let (bx, by) = (ix * cos + iy * sin, -ix * sin + iy * cos);
+                        let (qx, qy) = ((bx / s).floor() as i64, (by / s).floor() as i64);
+                        acc += if bx < -1.6 * s || by < -1.6 * s || bx > 9.6 * s || by > 6.6 * s {
+                            0.5
+                        } else if (-1..=8).contains(&qx)
+                            && (-1..=5).contains(&qy)
+                            && (qx + qy).rem_euclid(2) == 0
+                        {
+                            0.08
+                        } else {
+                            0.85
+                        };
+                    }
+                }
+                img[py * w + px] = acc / 16.0;
+            }
+        }
+        if crop_right > 0 {
+            for y in 0..h {
+                for x in w - crop_right..w {
+                    img[y * w + x] = 0.5;
+                }
+            }
+        }
+        let img = gaussian(&img, w, h, 0.6);
+        let corners = (0..6)
+            .flat_map(|r| (0..9).map(move |c| (c, r)))
+            .map(|(c, r)| to_image(c as f64 * s, r as f64 * s))
+            .collect();
+        (img, corners)
+    }
+
+    #[test]
+    fn finds_the_board_in_its_own_order_at_any_rotation() {
+        for angle_deg in [0.0, 17.0, 90.0, 180.0, 250.0] {
+            let (img, truth) = board_image(f64::to_radians(angle_deg), 40.0, (320.0, 240.0), 0);
+            let found = find_chessboard(&img, 640, 480, 9, 6)
+                .unwrap_or_else(|e| panic!("{angle_deg} deg: {e}"));
+            for (k, (f, t)) in found.iter().zip(&truth).enumerate() {
+                assert!(
+                    (f - t).norm() < 0.1,
+                    "{angle_deg} deg, corner {k}: {f} vs {t}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn refuses_partial_boards_noise_and_symmetric_patterns() {
+        let (img, _) = board_image(0.3, 40.0, (430.0, 240.0), 120);
+        assert!(
+            find_chessboard(&img, 640, 480, 9, 6).is_err(),
+            "cropped board"
+        );
+        let mut state = 12345u64;
+        let noise: Vec<f32> = (0..640 * 480)
+            .map(|_| {
+                state = state.wrapping_mul(6364136223846793005).wrapping_add(1);
+                (state >> 40) as f32 / (1u64 << 24) as f32
+            })
+            .collect();
+        assert!(find_chessboard(&gaussian(&noise, 640, 480, 1.0), 640, 480, 9, 6).is_err());
+        let (img, _) = board_image(0.0, 40.0, (320.0, 240.0), 0);
+        assert!(
+            find_chessboard(&img, 640, 480, 8, 6)
+                .unwrap_err()
+                .contains("one odd and one even")
+        );
+        assert!(
+            find_chessboard(&img, 640, 480, 7, 6).is_err(),
+            "a 7 x 6 window of a 9 x 6 board is ambiguous"
+        );
+    }
+}

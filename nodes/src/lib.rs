@@ -18,6 +18,7 @@ use fusegraph_engine::registry::RegisterError;
 
 /// Registers every built-in node type.
 pub fn register_all(registry: &mut Registry) -> Result<(), RegisterError> {
+    calib::register(registry)?;
     design::register(registry)?;
     dicom::register(registry)?;
     eval::register(registry)?;

@@ -6,6 +6,9 @@ mod camera_calibration;
 mod detect;
 mod homography;
 mod lm;
+mod ops;
+mod rectify;
+mod stereo;
 mod subpixel;
 mod zhang;
 
@@ -15,5 +18,23 @@ pub use camera_calibration::{
 pub use detect::find_chessboard;
 pub use homography::homography;
 pub use lm::{LeastSquares, LmReport, levenberg_marquardt};
+pub use rectify::{StereoRectification, rectify, remap};
+pub use stereo::{StereoCalibration, calibrate_stereo};
 pub use subpixel::{refine_corner, window_for_square};
 pub use zhang::{intrinsics_from_homographies, pose_from_homography};
+
+use fusegraph_engine::Registry;
+use fusegraph_engine::registry::RegisterError;
+use std::sync::Arc;
+
+pub(crate) use ops::{rectification_of, rig_isometry};
+
+/// Registers the `calib.*` ops.
+pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
+    registry.register(Arc::new(ops::FindChessboardOp::new()))?;
+    registry.register(Arc::new(ops::CalibrateCameraOp::new()))?;
+    registry.register(Arc::new(ops::StereoCalibrateOp::new()))?;
+    registry.register(Arc::new(ops::RectifyOp::new()))?;
+    registry.register(Arc::new(ops::RemapOp::new()))?;
+    Ok(())
+}

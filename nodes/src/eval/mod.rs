@@ -1,10 +1,12 @@
 //! Measurements against the phantom's ground truth: marker localisation errors
 //! and surface distances.
 
+mod calibration;
 mod markers;
 mod ops;
 mod surface;
 
+pub use calibration::{CalibrationErrors, compare_calibration};
 pub use markers::{MarkerComparison, compare_markers};
 pub use surface::{SurfaceDistances, skin_distances};
 
@@ -16,5 +18,6 @@ use std::sync::Arc;
 pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.register(Arc::new(ops::EvalMarkersOp::new()))?;
     registry.register(Arc::new(ops::EvalSkinOp::new()))?;
+    registry.register(Arc::new(ops::EvalCalibrationOp::new()))?;
     Ok(())
 }

@@ -1,9 +1,9 @@
 //! Node adapters: `eval.markers` and `eval.skin_distance`.
 
-use super::{compare_markers, skin_distances};
+use super::{compare_calibration, compare_markers, skin_distances};
 use crate::camera::isometry_from_matrix;
 use crate::phantom::GroundTruth;
-use fusegraph_engine::value::{Markers, Mesh, PathValue};
+use fusegraph_engine::value::{Markers, Mesh, PathValue, Rectification, StereoRig};
 use fusegraph_engine::{
     Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType,
 };
@@ -171,5 +171,85 @@ impl Op for EvalSkinOp {
         ctx.metric("max_mm", d.max_mm);
         ctx.metric("vertices_used", d.used as f64);
         Ok(Outputs::new().with("mean_mm", d.mean_mm))
+    }
+}
+
+pub(crate) struct EvalCalibrationOp(OpSpec);
+
+impl EvalCalibrationOp {
+    pub(crate) fn new() -> Self {
+        EvalCalibrationOp(
+            OpSpec::new(
+                "eval.calibration",
+                1,
+                "A calibrated rig (and rectification) against the phantom's true cameras",
+            )
+            .input("rig", &[ValueType::StereoRig], "Estimated rig")
+            .input("truth", &[ValueType::Path], "ground_truth.json")
+            .optional_input(
+                "rectification",
+                &[ValueType::Rectification],
+                "Estimated rectification (for epipolar_rms_px)",
+            )
+            .output(
+                "epipolar_rms_px",
+                ValueType::Scalar,
+                "Row error of true correspondences after rectification (NaN without one)",
+            ),
+        )
+    }
+}
+
+impl Op for EvalCalibrationOp {
+    fn spec(&self) -> &OpSpec {
+        &self.0
+    }
+
+    fn run(&self, inputs: &Inputs, _: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
+        let rig = inputs.get::<StereoRig>("rig")?;
+        let truth = truth(inputs)?;
+        let rect: Option<Arc<Rectification>> = inputs.optional("rectification")?;
+        let rect = rect.map(|r| crate::calib::rectification_of(&r));
+        let (l, r) = (
+            crate::camera::CameraModel::from_value(&rig.left),
+            crate::camera::CameraModel::from_value(&rig.right),
+        );
+        let e = compare_calibration(
+            &l,
+            &r,
+            &crate::calib::rig_isometry(&rig),
+            rect.as_ref(),
+            &truth,
+        );
+        for (name, v) in [
+            "left_fx", "left_fy", "left_cx", "left_cy", "right_fx", "right_fy", "right_cx",
+            "right_cy",
+        ]
+        .iter()
+        .zip(e.intrinsic_rel)
+        {
+            ctx.metric(&format!("{name}_rel_error"), v);
+        }
+        ctx.metric(
+            "focal_rel_error_max",
+            e.intrinsic_rel[0]
+                .max(e.intrinsic_rel[1])
+                .max(e.intrinsic_rel[4])
+                .max(e.intrinsic_rel[5]),
+        );
+        ctx.metric(
+            "centre_rel_error_max",
+            e.intrinsic_rel[2]
+                .max(e.intrinsic_rel[3])
+                .max(e.intrinsic_rel[6])
+                .max(e.intrinsic_rel[7]),
+        );
+        ctx.metric("left_distortion_max_px", e.distortion_max_px[0]);
+        ctx.metric("right_distortion_max_px", e.distortion_max_px[1]);
+        ctx.metric("baseline_error_mm", e.baseline_error_mm);
+        ctx.metric("rotation_error_deg", e.rotation_error_deg);
+        let epipolar = e.epipolar_rms_px.unwrap_or(f64::NAN);
+        ctx.metric("epipolar_rms_px", epipolar);
+        Ok(Outputs::new().with("epipolar_rms_px", epipolar))
     }
 }

@@ -1,15 +1,19 @@
 //! File nodes: sources that read files into the graph and sinks (`io.write_*`)
 //! that write values under the run's output folder.
 
+mod images;
 mod path;
 mod write_json;
 mod write_markers;
 mod write_mesh;
+mod write_rig;
 mod write_table;
 
+pub use images::{grey_of, load_image, side_by_side};
 pub use write_json::value_to_json;
 pub use write_markers::{markers_csv, slicer_markups};
 pub use write_mesh::{write_ply, write_stl};
+pub use write_rig::rig_yaml;
 pub use write_table::{table_csv, table_markdown};
 
 use fusegraph_engine::Registry;
@@ -19,6 +23,9 @@ use std::sync::Arc;
 /// Registers the `io.*` ops.
 pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.register(Arc::new(path::PathOp::new()))?;
+    registry.register(Arc::new(images::ReadImageOp::new()))?;
+    registry.register(Arc::new(images::WriteStereoPairOp::new()))?;
+    registry.register(Arc::new(write_rig::WriteRigOp::new()))?;
     registry.register(Arc::new(write_json::WriteJsonOp::new()))?;
     registry.register(Arc::new(write_markers::WriteMarkersOp::new()))?;
     registry.register(Arc::new(write_mesh::WriteMeshOp::new()))?;

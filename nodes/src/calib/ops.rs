@@ -23,10 +23,14 @@ const CORNER_COLUMNS: [&str; 8] = [
     "height_px",
 ];
 
+/// Board views by view id, and the image size (px).
+type ViewsBySize = (BTreeMap<u32, BoardView>, (usize, usize));
+
+/// A found board's corners and its image's width and height, or why not.
+type Detection = Result<(Vec<Point2<f64>>, usize, usize), String>;
+
 /// Board views by view id, with the image size, from a corners table.
-pub(crate) fn views_from_table(
-    t: &Table,
-) -> Result<(BTreeMap<u32, BoardView>, (usize, usize)), OpError> {
+pub(crate) fn views_from_table(t: &Table) -> Result<ViewsBySize, OpError> {
     if t.columns.iter().map(String::as_str).ne(CORNER_COLUMNS) {
         return Err(OpError::invalid(format!(
             "not a corners table (columns {:?})",
@@ -160,7 +164,7 @@ impl Op for FindChessboardOp {
         };
         let (cols, rows) = (cols as usize, rows as usize);
         let square = params.float("square_mm")?;
-        let results: Vec<Result<(Vec<Point2<f64>>, usize, usize), String>> = files
+        let results: Vec<Detection> = files
             .par_iter()
             .map(|f| {
                 let img = load_image(f).map_err(|e| e.to_string())?;
@@ -303,9 +307,9 @@ impl Op for StereoCalibrateOp {
 /// The rig's left -> right isometry.
 pub(crate) fn rig_isometry(rig: &StereoRig) -> nalgebra::Isometry3<f64> {
     let mut m = [[0.0; 4]; 4];
-    for r in 0..3 {
-        m[r][..3].copy_from_slice(&rig.rotation[r]);
-        m[r][3] = rig.translation_mm[r];
+    for (r, row) in m.iter_mut().take(3).enumerate() {
+        row[..3].copy_from_slice(&rig.rotation[r]);
+        row[3] = rig.translation_mm[r];
     }
     m[3][3] = 1.0;
     isometry_from_matrix(&m)

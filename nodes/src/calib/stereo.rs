@@ -159,13 +159,13 @@ pub fn calibrate_stereo(
         .map(|p| pose_from(&report.x.as_slice()[o + 6 + 6 * p..o + 12 + 6 * p]))
         .collect();
     let (mut sums, mut counts) = ([0.0f64; 2], [0usize; 2]);
-    for p in 0..pairs.len() {
+    for (p, (left_view, right_view)) in pairs.iter().enumerate() {
         let r = problem.block(&report.x, p);
-        let n_left = 2 * pairs[p].0.board_mm.len();
+        let n_left = 2 * left_view.board_mm.len();
         sums[0] += r[..n_left].iter().map(|e| e * e).sum::<f64>();
         sums[1] += r[n_left..].iter().map(|e| e * e).sum::<f64>();
-        counts[0] += pairs[p].0.board_mm.len();
-        counts[1] += pairs[p].1.board_mm.len();
+        counts[0] += left_view.board_mm.len();
+        counts[1] += right_view.board_mm.len();
     }
     Ok(StereoCalibration {
         left: lc,

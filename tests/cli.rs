@@ -508,3 +508,56 @@ fn design_graph_reproduces_the_papers_design() {
     let png = image::open(out.join("z_variance_vs_baseline.png")).unwrap();
     assert_eq!((png.width(), png.height()), (800, 560));
 }
+
+#[test]
+fn calibration_meets_the_acceptance_figures_on_the_full_phantom() {
+    let t = tempfile::tempdir().unwrap();
+    std::fs::copy(
+        graph_file("calibrate.toml"),
+        t.path().join("calibrate.toml"),
+    )
+    .unwrap();
+    let o = fusegraph(&["run", "calibrate.toml"], t.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = t.path().join("out/calibrate");
+    let r = report(&out);
+    let m = |k: &str| {
+        r["metrics"][k]
+            .as_f64()
+            .unwrap_or_else(|| panic!("no metric {k}"))
+    };
+    // Every usable pair found; the three unusable ones (2 out of frame, 1 too
+    // oblique) skipped.
+    assert_eq!(
+        (m("left_corners.detected"), m("left_corners.total")),
+        (18.0, 21.0)
+    );
+    assert_eq!(m("right_corners.detected"), 18.0);
+    assert!(m("stereo.rms_px") <= 0.1, "{}", m("stereo.rms_px"));
+    assert!(m("eval.focal_rel_error_max") <= 0.005);
+    assert!(m("eval.centre_rel_error_max") <= 0.005);
+    assert!(
+        m("eval.baseline_error_mm") <= 0.3,
+        "{}",
+        m("eval.baseline_error_mm")
+    );
+    assert!(
+        m("eval.rotation_error_deg") <= 0.05,
+        "{}",
+        m("eval.rotation_error_deg")
+    );
+    assert!(
+        m("eval.epipolar_rms_px") <= 0.1,
+        "{}",
+        m("eval.epipolar_rms_px")
+    );
+    for f in ["rig.json", "rig.yml", "rectified_view_00.png"] {
+        assert!(out.join(f).metadata().unwrap().len() > 0, "{f}");
+    }
+    let yaml = std::fs::read_to_string(out.join("rig.yml")).unwrap();
+    assert!(
+        yaml.starts_with("%YAML:1.0\n---\n")
+            && yaml.contains("K1: !!opencv-matrix")
+            && yaml.contains("T: !!opencv-matrix")
+    );
+}

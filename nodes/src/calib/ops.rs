@@ -95,6 +95,11 @@ impl FindChessboardOp {
                 &[ValueType::Path],
                 "Folder of images (or the `dir` parameter)",
             )
+            .optional_input(
+                "image",
+                &[ValueType::Image],
+                "A single image instead of a folder (view 0)",
+            )
             .param(ParamSpec::optional_path(
                 "dir",
                 "Folder of images, relative to the graph",
@@ -128,13 +133,41 @@ impl Op for FindChessboardOp {
         &self.0
     }
     fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
+        let size = params.int_list("pattern")?;
+        let &[cols, rows] = size.as_slice() else {
+            return Err(OpError::invalid(
+                "pattern takes two numbers: inner corners per row and per column",
+            ));
+        };
+        let (cols, rows) = (cols as usize, rows as usize);
+        let square = params.float("square_mm")?;
+        let table = |found: Vec<(usize, Vec<Point2<f64>>, usize, usize)>| {
+            let mut data = Vec::new();
+            for (view, corners, w, h) in found {
+                for (k, c) in corners.iter().enumerate() {
+                    let (bx, by) = ((k % cols) as f64 * square, (k / cols) as f64 * square);
+                    data.extend([view as f64, k as f64, c.x, c.y, bx, by, w as f64, h as f64]);
+                }
+            }
+            Table::new(CORNER_COLUMNS.iter().map(|s| s.to_string()).collect(), data)
+                .map_err(|e| OpError::invalid(e.0))
+        };
+        if let Some(img) = inputs.optional::<Image>("image")? {
+            let corners = find_chessboard(&grey_of(&img), img.width, img.height, cols, rows)
+                .map_err(OpError::invalid)?;
+            ctx.metric("detected", 1.0);
+            ctx.metric("total", 1.0);
+            return Ok(
+                Outputs::new().with("corners", table(vec![(0, corners, img.width, img.height)])?)
+            );
+        }
         let from_input: Option<Arc<PathValue>> = inputs.optional("dir")?;
         let dir = match (params.optional_path("dir")?, from_input) {
             (Some(d), None) => d,
             (None, Some(d)) => d.path.clone(),
             _ => {
                 return Err(OpError::invalid(
-                    "give either the `dir` parameter or the `dir` input",
+                    "give the `dir` parameter, the `dir` input or the `image` input",
                 ));
             }
         };
@@ -156,14 +189,6 @@ impl Op for FindChessboardOp {
                 pattern.as_str()
             )));
         }
-        let size = params.int_list("pattern")?;
-        let &[cols, rows] = size.as_slice() else {
-            return Err(OpError::invalid(
-                "pattern takes two numbers: inner corners per row and per column",
-            ));
-        };
-        let (cols, rows) = (cols as usize, rows as usize);
-        let square = params.float("square_mm")?;
         let results: Vec<Detection> = files
             .par_iter()
             .map(|f| {
@@ -172,27 +197,18 @@ impl Op for FindChessboardOp {
                     .map(|c| (c, img.width, img.height))
             })
             .collect();
-        let mut data = Vec::new();
-        let mut detected = 0;
+        let mut found = Vec::new();
         for (view, (file, result)) in files.iter().zip(results).enumerate() {
             match result {
-                Ok((corners, w, h)) => {
-                    detected += 1;
-                    for (k, c) in corners.iter().enumerate() {
-                        let (bx, by) = ((k % cols) as f64 * square, (k / cols) as f64 * square);
-                        data.extend([view as f64, k as f64, c.x, c.y, bx, by, w as f64, h as f64]);
-                    }
-                }
+                Ok((corners, w, h)) => found.push((view, corners, w, h)),
                 Err(why) => {
                     tracing::info!(node = %ctx.node_id(), "{}: skipped: {why}", file.display())
                 }
             }
         }
-        ctx.metric("detected", detected as f64);
+        ctx.metric("detected", found.len() as f64);
         ctx.metric("total", files.len() as f64);
-        let table = Table::new(CORNER_COLUMNS.iter().map(|s| s.to_string()).collect(), data)
-            .map_err(|e| OpError::invalid(e.0))?;
-        Ok(Outputs::new().with("corners", table))
+        Ok(Outputs::new().with("corners", table(found)?))
     }
 }
 

@@ -72,3 +72,38 @@ impl Op for WriteRigOp {
             .with("yaml", path_value(&yaml)?))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fusegraph_engine::value::Camera;
+
+    #[test]
+    fn yaml_has_opencv_matrix_nodes() {
+        let cam = Camera {
+            width: 800,
+            height: 600,
+            k: [[1333.0, 0.0, 400.0], [0.0, 1334.0, 300.0], [0.0, 0.0, 1.0]],
+            distortion: [-0.1, 0.15, 0.001, -0.001, 0.0],
+        };
+        let rig = StereoRig {
+            left: cam.clone(),
+            right: cam,
+            rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            translation_mm: [-55.0, 0.0, 0.0],
+        };
+        let y = rig_yaml(&rig);
+        assert!(
+            y.starts_with("%YAML:1.0\n---\nimage_width: 800\nimage_height: 600\n"),
+            "{y}"
+        );
+        assert!(y.contains("D1: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n"));
+        let t_line = y
+            .lines()
+            .skip_while(|l| !l.starts_with("T:"))
+            .nth(4)
+            .unwrap();
+        assert_eq!(t_line.matches(',').count(), 2, "{t_line}");
+        assert!(t_line.contains("-5.5"), "{t_line}");
+    }
+}

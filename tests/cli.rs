@@ -561,3 +561,19 @@ fn calibration_meets_the_acceptance_figures_on_the_full_phantom() {
             && yaml.contains("T: !!opencv-matrix")
     );
 }
+
+#[test]
+fn every_shipped_graph_validates() {
+    let t = tempfile::tempdir().unwrap();
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("graphs");
+    let mut checked = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            let o = fusegraph(&["validate", path.to_str().unwrap()], t.path());
+            assert!(o.status.success(), "{}: {}", path.display(), stderr(&o));
+            checked += 1;
+        }
+    }
+    assert!(checked >= 6, "{checked} graphs");
+}

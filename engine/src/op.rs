@@ -2,7 +2,7 @@
 //! with the inputs, outputs and context it runs with.
 
 use crate::param::{ParamError, ParamSpec, Params};
-use crate::value::{FromValue, Value, ValueType};
+use crate::value::{FromValue, PathValue, Value, ValueType};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -378,4 +378,15 @@ pub trait Op: Send + Sync {
     fn spec(&self) -> &OpSpec;
     /// Computes the outputs.
     fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError>;
+}
+
+/// A `Path` value for `path`, hashed by content (for ops that write files).
+pub fn path_value(path: &std::path::Path) -> Result<Value, OpError> {
+    let hash = crate::hash::hash_path(path).map_err(|e| OpError::io(path, e))?;
+    let abs = std::path::absolute(path).map_err(|e| OpError::io(path, e))?;
+    Ok(PathValue {
+        path: abs,
+        content_hash: hash.to_hex().to_string(),
+    }
+    .into())
 }

@@ -8,7 +8,7 @@ use crate::key::NodeKey;
 use crate::op::{Inputs, OpError, RunCtx};
 use crate::report::{NodeReport, NodeStatus, RunReport};
 use crate::validate::ValidGraph;
-use crate::value::{PathValue, Value};
+use crate::value::Value;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::collections::BTreeSet;
 use std::panic::{AssertUnwindSafe, catch_unwind};
@@ -352,15 +352,4 @@ fn panic_message(panic: &Box<dyn std::any::Any + Send>) -> String {
         .map(|s| s.to_string())
         .or_else(|| panic.downcast_ref::<String>().cloned())
         .unwrap_or_else(|| "unknown panic".into())
-}
-
-/// A `Path` value for `path`, hashed by content (for ops that write files).
-pub fn path_value(path: &std::path::Path) -> Result<Value, OpError> {
-    let hash = crate::hash::hash_path(path).map_err(|e| OpError::io(path, e))?;
-    let abs = std::path::absolute(path).map_err(|e| OpError::io(path, e))?;
-    Ok(PathValue {
-        path: abs,
-        content_hash: hash.to_hex().to_string(),
-    }
-    .into())
 }

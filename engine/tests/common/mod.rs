@@ -5,12 +5,12 @@
 #![allow(dead_code)]
 
 use fusegraph_engine::cache::{DiskCache, MemoryCache};
-use fusegraph_engine::schedule::{RunOptions, RunOutcome, path_value};
+use fusegraph_engine::schedule::{RunOptions, RunOutcome};
 use fusegraph_engine::session::{load_graph, run};
 use fusegraph_engine::value::{Grid, Volume};
 use fusegraph_engine::{
     GraphErrors, Inputs, NodeStatus, Op, OpError, OpSpec, Outputs, ParamSpec, Params, Registry,
-    RunCtx, ValueType,
+    RunCtx, ValueType, path_value,
 };
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};

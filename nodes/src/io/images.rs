@@ -1,10 +1,9 @@
 //! Images in and out: `io.read_image` and `io.write_stereo_pair` (a rectified
 //! pair side by side with horizontal lines, to check rectification by eye).
 
-use fusegraph_engine::schedule::path_value;
 use fusegraph_engine::value::{Image, PathValue, Pixels};
 use fusegraph_engine::{
-    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType,
+    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType, path_value,
 };
 use std::sync::Arc;
 

@@ -1,8 +1,7 @@
 //! `io.path`: a file or folder on disk as a `Path` value, keyed by its content.
 
-use fusegraph_engine::schedule::path_value;
 use fusegraph_engine::{
-    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType,
+    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType, path_value,
 };
 
 pub(crate) struct PathOp(OpSpec);

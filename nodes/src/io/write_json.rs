@@ -1,9 +1,8 @@
 //! `io.write_json`: writes a small value (a number, table, transform, markers,
 //! camera, rig) as JSON under the output folder.
 
-use fusegraph_engine::schedule::path_value;
 use fusegraph_engine::{
-    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, Value, ValueType,
+    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, Value, ValueType, path_value,
 };
 
 /// The value as JSON: `{"type": "Scalar", "value": ...}`, numbers in their

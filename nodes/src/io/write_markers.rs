@@ -1,10 +1,9 @@
 //! `io.write_markers`: marker centres as a 3D Slicer markups file (`.mrk.json`,
 //! LPS) and as CSV.
 
-use fusegraph_engine::schedule::path_value;
 use fusegraph_engine::value::Markers;
 use fusegraph_engine::{
-    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType,
+    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType, path_value,
 };
 
 /// A Slicer markups fiducial list: every control point `defined`, positions in

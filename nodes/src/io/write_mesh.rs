@@ -4,10 +4,9 @@
 //! hundreds of thousands of vertices of an isosurface) and binary PLY is a
 //! dozen lines.
 
-use fusegraph_engine::schedule::path_value;
 use fusegraph_engine::value::Mesh;
 use fusegraph_engine::{
-    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType,
+    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType, path_value,
 };
 use std::io::Write;
 use std::path::Path;

@@ -2,10 +2,9 @@
 //! (`cv2.FileStorage(path, cv2.FILE_STORAGE_READ)` reads K1, D1, K2, D2, R, T,
 //! image_width, image_height).
 
-use fusegraph_engine::schedule::path_value;
 use fusegraph_engine::value::StereoRig;
 use fusegraph_engine::{
-    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType,
+    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType, path_value,
 };
 
 fn matrix(name: &str, rows: usize, cols: usize, data: &[f64]) -> String {

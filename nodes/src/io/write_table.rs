@@ -1,9 +1,8 @@
 //! `io.write_table`: a table as CSV and as a Markdown table.
 
-use fusegraph_engine::schedule::path_value;
 use fusegraph_engine::value::Table;
 use fusegraph_engine::{
-    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType,
+    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType, path_value,
 };
 
 /// CSV with a header row; numbers in full precision.

@@ -4,10 +4,9 @@ use super::camera_surface::{SurfaceSimParams, simulate_camera_surface};
 use super::generate::{PhantomConfig, PhantomSize, generate};
 use super::shape::ShapeParams;
 use super::truth::GroundTruth;
-use fusegraph_engine::schedule::path_value;
 use fusegraph_engine::value::{Markers, PathValue, PointCloud};
 use fusegraph_engine::{
-    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType,
+    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType, path_value,
 };
 
 pub(crate) struct GenerateOp(OpSpec);

@@ -2,10 +2,10 @@
 //! with the bundled DejaVu Sans, so no system font library is needed).
 
 use fusegraph_engine::registry::RegisterError;
-use fusegraph_engine::schedule::path_value;
 use fusegraph_engine::value::Table;
 use fusegraph_engine::{
     Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, Registry, RunCtx, ValueType,
+    path_value,
 };
 use plotters::prelude::*;
 use std::path::Path;

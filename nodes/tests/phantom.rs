@@ -32,6 +32,60 @@ fn phantom() -> &'static (PathBuf, GroundTruth) {
     })
 }
 
+/// The chessboard's inner corners in the board frame (mm), row by row.
+fn board_corners(truth: &GroundTruth) -> Vec<Point3<f64>> {
+    let [cols, rows] = truth.chessboard.pattern;
+    (0..rows)
+        .flat_map(|r| (0..cols).map(move |c| (c, r)))
+        .map(|(c, r)| {
+            Point3::new(
+                c as f64 * truth.chessboard.square_mm,
+                r as f64 * truth.chessboard.square_mm,
+                0.0,
+            )
+        })
+        .collect()
+}
+
+/// Every calibration image: (file, its camera, board -> that camera, usable?).
+fn calibration_images(
+    truth: &GroundTruth,
+) -> Vec<(
+    String,
+    fusegraph_nodes::camera::CameraModel,
+    Isometry3<f64>,
+    bool,
+)> {
+    let left_to_right = isometry_from_matrix(&truth.rig.left_to_right);
+    truth
+        .calibration
+        .iter()
+        .flat_map(|pair| {
+            let board_to_left = isometry_from_matrix(&pair.board_to_left_camera);
+            [
+                (
+                    pair.left.clone(),
+                    truth.rig.left.clone(),
+                    board_to_left,
+                    pair.detectable,
+                ),
+                (
+                    pair.right.clone(),
+                    truth.rig.right.clone(),
+                    left_to_right * board_to_left,
+                    pair.detectable,
+                ),
+            ]
+        })
+        .collect()
+}
+
+fn grey(img: &image::RgbImage) -> Vec<f32> {
+    img.pixels()
+        .map(|p| p.0.iter().map(|&c| c as f32).sum::<f32>() / 765.0)
+        .collect()
+}
+
 fn rgb(path: &Path) -> image::RgbImage {
     image::open(path)
         .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
@@ -245,39 +299,19 @@ fn true_marker_faces_project_onto_their_green_blobs() {
 #[test]
 fn chessboard_corners_land_on_the_rendered_corners() {
     let (dir, truth) = phantom();
-    let left_to_right = isometry_from_matrix(&truth.rig.left_to_right);
-    let [cols, rows] = truth.chessboard.pattern;
-    let corners: Vec<Point3<f64>> = (0..rows)
-        .flat_map(|r| (0..cols).map(move |c| (c, r)))
-        .map(|(c, r)| {
-            Point3::new(
-                c as f64 * truth.chessboard.square_mm,
-                r as f64 * truth.chessboard.square_mm,
-                0.0,
-            )
-        })
-        .collect();
+    let corners = board_corners(truth);
     let (mut sum2, mut n, mut worst) = (0.0, 0usize, 0.0f64);
-    for pair in truth.calibration.iter().filter(|p| p.detectable) {
-        let board_to_left = isometry_from_matrix(&pair.board_to_left_camera);
-        for (file, camera, board_to_camera) in [
-            (&pair.left, &truth.rig.left, board_to_left),
-            (&pair.right, &truth.rig.right, left_to_right * board_to_left),
-        ] {
-            let img = rgb(&dir.join(file));
-            let grey: Vec<f32> = img
-                .pixels()
-                .map(|p| p.0.iter().map(|&c| c as f32).sum::<f32>() / 765.0)
-                .collect();
-            for corner in &corners {
-                let p = camera.project(&(board_to_camera * corner)).unwrap();
-                let (x, y) = refine_corner(&grey, camera.width, camera.height, (p.x, p.y), 4)
-                    .unwrap_or_else(|| panic!("{file}: no corner near {p}"));
-                let err = ((x - p.x).powi(2) + (y - p.y).powi(2)).sqrt();
-                worst = worst.max(err);
-                sum2 += err * err;
-                n += 1;
-            }
+    for (file, camera, board_to_camera, _) in calibration_images(truth).into_iter().filter(|i| i.3)
+    {
+        let grey = grey(&rgb(&dir.join(&file)));
+        for corner in &corners {
+            let p = camera.project(&(board_to_camera * corner)).unwrap();
+            let (x, y) = refine_corner(&grey, camera.width, camera.height, (p.x, p.y), 4)
+                .unwrap_or_else(|| panic!("{file}: no corner near {p}"));
+            let err = ((x - p.x).powi(2) + (y - p.y).powi(2)).sqrt();
+            worst = worst.max(err);
+            sum2 += err * err;
+            n += 1;
         }
     }
     let rms = (sum2 / n as f64).sqrt();
@@ -418,46 +452,57 @@ fn same_seed_gives_the_same_bytes_on_any_thread_count() {
 fn the_detector_finds_every_usable_board_in_the_right_order() {
     use fusegraph_nodes::calib::find_chessboard;
     let (dir, truth) = phantom();
-    let left_to_right = isometry_from_matrix(&truth.rig.left_to_right);
+    let corners = board_corners(truth);
     let [cols, rows] = truth.chessboard.pattern;
-    let corners: Vec<Point3<f64>> = (0..rows)
-        .flat_map(|r| (0..cols).map(move |c| (c, r)))
-        .map(|(c, r)| {
-            Point3::new(
-                c as f64 * truth.chessboard.square_mm,
-                r as f64 * truth.chessboard.square_mm,
-                0.0,
-            )
-        })
-        .collect();
     let (mut found, mut worst) = (0, 0.0f64);
-    for pair in &truth.calibration {
-        let board_to_left = isometry_from_matrix(&pair.board_to_left_camera);
-        for (file, camera, board_to_camera) in [
-            (&pair.left, &truth.rig.left, board_to_left),
-            (&pair.right, &truth.rig.right, left_to_right * board_to_left),
-        ] {
-            let img = rgb(&dir.join(file));
-            let grey: Vec<f32> = img
-                .pixels()
-                .map(|p| p.0.iter().map(|&c| c as f32).sum::<f32>() / 765.0)
-                .collect();
-            match find_chessboard(&grey, camera.width, camera.height, cols, rows) {
-                Ok(found_corners) => {
-                    // Whatever is returned must be right, in the truth's order.
-                    for (k, c) in found_corners.iter().enumerate() {
-                        let p = camera.project(&(board_to_camera * corners[k])).unwrap();
-                        let err = (c - p).norm();
-                        worst = worst.max(err);
-                        assert!(err < 0.5, "{file}: corner {k} off by {err} px");
-                    }
-                    found += 1;
+    for (file, camera, board_to_camera, usable) in calibration_images(truth) {
+        let grey = grey(&rgb(&dir.join(&file)));
+        match find_chessboard(&grey, camera.width, camera.height, cols, rows) {
+            Ok(found_corners) => {
+                // Whatever is returned must be right, in the truth's order.
+                for (k, c) in found_corners.iter().enumerate() {
+                    let p = camera.project(&(board_to_camera * corners[k])).unwrap();
+                    let err = (c - p).norm();
+                    worst = worst.max(err);
+                    assert!(err < 0.5, "{file}: corner {k} off by {err} px");
                 }
-                Err(why) => assert!(!pair.detectable, "{file}: usable board not found: {why}"),
+                found += 1;
             }
+            Err(why) => assert!(!usable, "{file}: usable board not found: {why}"),
         }
     }
     eprintln!("{found} boards found, worst corner error {worst:.3} px");
     let usable = truth.calibration.iter().filter(|p| p.detectable).count();
     assert!(found >= 2 * usable);
+}
+
+#[test]
+fn the_detector_survives_jpeg_compression() {
+    use fusegraph_nodes::calib::find_chessboard;
+    let (dir, truth) = phantom();
+    let corners = board_corners(truth);
+    let [cols, rows] = truth.chessboard.pattern;
+    let mut worst = 0.0f64;
+    for (file, camera, board_to_camera, _) in calibration_images(truth)
+        .into_iter()
+        .filter(|i| i.3)
+        .step_by(3)
+    {
+        // Quality 70, as a phone or webcam would save it.
+        let mut jpeg = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 70)
+            .encode_image(&rgb(&dir.join(&file)))
+            .unwrap();
+        let decoded = image::load_from_memory(&jpeg).unwrap().to_rgb8();
+        let found = find_chessboard(&grey(&decoded), camera.width, camera.height, cols, rows)
+            .unwrap_or_else(|e| panic!("{file} as JPEG: {e}"));
+        for (k, c) in found.iter().enumerate() {
+            let err = (c - camera.project(&(board_to_camera * corners[k])).unwrap()).norm();
+            if err > 0.6 {
+                eprintln!("{file}: corner {k} at {c} off by {err}");
+            }
+            worst = worst.max(err);
+        }
+    }
+    assert!(worst < 0.6, "worst corner error {worst} px after JPEG");
 }

@@ -375,14 +375,98 @@ fn refine_all(
         .map(|(k, p)| (corners[k + 1] - p).norm())
         .fold(f64::INFINITY, f64::min);
     let half = window_for_square(spacing);
-    corners
-        .iter()
-        .map(|p| {
-            refine_corner(grey, w, h, (p.x, p.y), half)
-                .map(|(x, y)| Point2::new(x, y))
-                .ok_or_else(|| format!("corner near ({:.1}, {:.1}) does not refine (too close to the border or blurred)", p.x, p.y))
+    let refine = |p: &Point2<f64>| {
+        refine_corner(grey, w, h, (p.x, p.y), half)
+            .map(|(x, y)| Point2::new(x, y))
+            .ok_or_else(|| format!("corner near ({:.1}, {:.1}) does not refine (too close to the border or blurred)", p.x, p.y))
+    };
+    let mut refined: Vec<Point2<f64>> = corners.iter().map(refine).collect::<Result<_, _>>()?;
+    // A corner the grid growth took from a nearby artefact (JPEG blocks, clutter)
+    // breaks the straight, evenly stepping rows and columns: re-locate it from
+    // its neighbours once; if it still does not fit, refuse the board.
+    for _ in 0..2 {
+        let bad = inconsistent_corners(&refined, cols);
+        if bad.is_empty() {
+            return Ok(refined);
+        }
+        for k in bad {
+            let guess = predict_from_neighbours(&refined, cols, k)
+                .ok_or("a corner has no neighbours to check it by")?;
+            refined[k] = refine(&guess)?;
+        }
+    }
+    match inconsistent_corners(&refined, cols).first() {
+        None => Ok(refined),
+        Some(&k) => Err(format!(
+            "corner {k} at ({:.1}, {:.1}) does not line up with its neighbours",
+            refined[k].x, refined[k].y
+        )),
+    }
+}
+
+/// Neighbour triples (a, b) around corner k along rows and columns: either both
+/// sides (a, k, b) or two on one side (k, a, b).
+fn neighbour_lines(cols: usize, rows: usize, k: usize) -> Vec<(usize, usize, bool)> {
+    let (i, j) = ((k % cols) as isize, (k / cols) as isize);
+    let at = |i: isize, j: isize| {
+        (i >= 0 && j >= 0 && (i as usize) < cols && (j as usize) < rows)
+            .then(|| j as usize * cols + i as usize)
+    };
+    let mut out = Vec::new();
+    for (di, dj) in [(1, 0), (0, 1)] {
+        match (at(i - di, j - dj), at(i + di, j + dj)) {
+            (Some(a), Some(b)) => out.push((a, b, true)),
+            (None, Some(a)) => out.extend(at(i + 2 * di, j + 2 * dj).map(|b| (a, b, false))),
+            (Some(a), None) => out.extend(at(i - 2 * di, j - 2 * dj).map(|b| (a, b, false))),
+            (None, None) => {}
+        }
+    }
+    out
+}
+
+/// Corners off the line through their neighbours (by more than 1 px, or 2 %
+/// of the step) or unevenly placed along it (projective spacing changes by far
+/// less than the 25 % allowed between neighbouring steps).
+fn inconsistent_corners(corners: &[Point2<f64>], cols: usize) -> Vec<usize> {
+    let rows = corners.len() / cols;
+    (0..corners.len())
+        .filter(|&k| {
+            let p = corners[k];
+            neighbour_lines(cols, rows, k)
+                .iter()
+                .any(|&(a, b, between)| {
+                    let (pa, pb) = (corners[a], corners[b]);
+                    let line = pb - pa;
+                    let len = line.norm();
+                    let off_line = ((p - pa).perp(&line) / len).abs();
+                    let (step_here, step_there) = if between {
+                        ((p - pa).norm(), (pb - p).norm())
+                    } else {
+                        ((pa - p).norm(), (pb - pa).norm())
+                    };
+                    let ratio = step_here / step_there;
+                    off_line > (0.02 * step_there).max(1.0) || !(0.8..=1.25).contains(&ratio)
+                })
         })
         .collect()
+}
+
+/// Where corner k should be, from its neighbours (midpoint or extrapolation).
+fn predict_from_neighbours(corners: &[Point2<f64>], cols: usize, k: usize) -> Option<Point2<f64>> {
+    let rows = corners.len() / cols;
+    let guesses: Vec<Point2<f64>> = neighbour_lines(cols, rows, k)
+        .iter()
+        .map(|&(a, b, between)| {
+            if between {
+                Point2::from((corners[a].coords + corners[b].coords) * 0.5)
+            } else {
+                corners[a] + (corners[a] - corners[b])
+            }
+        })
+        .collect();
+    (!guesses.is_empty()).then(|| {
+        Point2::from(guesses.iter().map(|g| g.coords).sum::<Vector2<f64>>() / guesses.len() as f64)
+    })
 }
 
 #[cfg(test)]

@@ -380,11 +380,13 @@ fn refine_all(
             .map(|(x, y)| Point2::new(x, y))
             .ok_or_else(|| format!("corner near ({:.1}, {:.1}) does not refine (too close to the border or blurred)", p.x, p.y))
     };
-    let mut refined: Vec<Point2<f64>> = corners.iter().map(refine).collect::<Result<_, _>>()?;
+    // A candidate that does not refine stays where it is for now: the check
+    // below finds it out of line and re-locates it.
+    let mut refined: Vec<Point2<f64>> = corners.iter().map(|p| refine(p).unwrap_or(*p)).collect();
     // A corner the grid growth took from a nearby artefact (JPEG blocks, clutter)
     // breaks the straight, evenly stepping rows and columns: re-locate it from
-    // its neighbours once; if it still does not fit, refuse the board.
-    for _ in 0..2 {
+    // its neighbours; if it still does not fit, refuse the board.
+    for _ in 0..3 {
         let bad = inconsistent_corners(&refined, cols);
         if bad.is_empty() {
             return Ok(refined);

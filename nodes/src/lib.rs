@@ -12,6 +12,7 @@ pub mod math;
 pub mod mri;
 pub mod phantom;
 pub mod plot;
+pub mod register;
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;

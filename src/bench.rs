@@ -23,6 +23,20 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 5)]
         repeat: usize,
     },
+    /// ICP time per iteration, point-to-point and point-to-plane, on two clouds
+    /// of a bumpy ellipsoid (target offset by 3 deg and 4 mm); also writes them
+    /// as PLY for ../shared/bench/peers.py icp.
+    Icp {
+        /// Points per cloud.
+        #[arg(long, default_value_t = 100_000)]
+        points: usize,
+        /// Iterations.
+        #[arg(long, default_value_t = 30)]
+        iterations: usize,
+        /// Folder for source.ply and target.ply [default: a temporary one].
+        #[arg(long)]
+        out: Option<std::path::PathBuf>,
+    },
     /// Marching cubes throughput on an N^3 volume holding a wavy sphere, or on a
     /// DICOM series at its mean value (as ../shared/bench/peers.py mc does).
     MarchingCubes {
@@ -71,12 +85,109 @@ pub fn run_bench(what: BenchCommand, registry: &Registry) -> anyhow::Result<()> 
             jobs,
             repeat,
         } => scheduler(nodes, jobs, repeat, registry),
+        BenchCommand::Icp {
+            points,
+            iterations,
+            out,
+        } => icp_bench(points, iterations, out.as_deref()),
         BenchCommand::MarchingCubes {
             size,
             dicom,
             repeat,
         } => marching_cubes(size, dicom.as_deref(), repeat),
     }
+}
+
+fn icp_bench(n: usize, iterations: usize, out: Option<&std::path::Path>) -> anyhow::Result<()> {
+    use fusegraph_nodes::register::{IcpMethod, IcpParams, Kernel, Nearest, estimate_normals, icp};
+    use nalgebra::{Isometry3, Point3, Vector3};
+    let cloud = |n: usize, phase: f64| -> Vec<Point3<f64>> {
+        (0..n)
+            .map(|i| {
+                let z = 1.0 - 2.0 * (i as f64 + phase) / n as f64;
+                let a = (i as f64 + phase) * 2.399963;
+                let r = (1.0 - z * z).sqrt();
+                let (x, y) = (r * a.cos(), r * a.sin());
+                let bump = 1.0
+                    + 0.12 * (3.0 * x + 1.0).sin() * (2.0 * y).cos()
+                    + 0.08 * (4.0 * z * x).sin();
+                Point3::new(60.0 * x * bump, 45.0 * y * bump, 35.0 * z * bump)
+            })
+            .collect()
+    };
+    let target = cloud(n, 0.5);
+    let offset = Isometry3::new(Vector3::new(4.0, -2.0, 1.0), Vector3::new(0.0, 0.03, 0.04));
+    let source: Vec<Point3<f64>> = cloud(n, 0.25).iter().map(|p| offset * p).collect();
+    let t = Instant::now();
+    let normals = estimate_normals(&target, 16, None);
+    let normals_ms = t.elapsed().as_secs_f64() * 1e3;
+    let t = Instant::now();
+    let tree = Nearest::new(&target).ok_or_else(|| anyhow::anyhow!("empty"))?;
+    let tree_ms = t.elapsed().as_secs_f64() * 1e3;
+    let dir = tempfile::tempdir()?;
+    let folder = out
+        .map(std::path::Path::to_path_buf)
+        .unwrap_or_else(|| dir.path().to_path_buf());
+    std::fs::create_dir_all(&folder)?;
+    let flat = |p: &[Point3<f64>]| -> Vec<f32> {
+        p.iter()
+            .flat_map(|q| [q.x as f32, q.y as f32, q.z as f32])
+            .collect()
+    };
+    let nflat: Vec<f32> = normals
+        .iter()
+        .flat_map(|v| [v.x as f32, v.y as f32, v.z as f32])
+        .collect();
+    fusegraph_nodes::io::write_ply(
+        &folder.join("source.ply"),
+        &flat(&source),
+        None,
+        None,
+        &[],
+        "bench source",
+    )?;
+    fusegraph_nodes::io::write_ply(
+        &folder.join("target.ply"),
+        &flat(&target),
+        Some(&nflat),
+        None,
+        &[],
+        "bench target",
+    )?;
+    println!(
+        "icp bench: {n} vs {n} points, {iterations} iterations; k-d tree {tree_ms:.1} ms, normals {normals_ms:.1} ms; clouds in {}",
+        folder.display()
+    );
+    for method in [IcpMethod::PointToPoint, IcpMethod::PointToPlane] {
+        let params = IcpParams {
+            method,
+            max_distance_mm: 10.0,
+            trim_ratio: 1.0,
+            kernel: Kernel::None,
+            max_iterations: iterations,
+            tolerance: 0.0,
+            voxel_sizes_mm: vec![],
+        };
+        let t = Instant::now();
+        let r = icp(
+            &source,
+            &target,
+            Some(&normals),
+            &tree,
+            &Isometry3::identity(),
+            &params,
+        )
+        .map_err(anyhow::Error::msg)?;
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        println!(
+            "  {method:?}: {:.1} ms per iteration ({} iterations, rmse {:.3} mm, fitness {:.3})",
+            ms / r.iterations as f64,
+            r.iterations,
+            r.rmse_mm,
+            r.fitness
+        );
+    }
+    Ok(())
 }
 
 fn marching_cubes(n: usize, dicom: Option<&std::path::Path>, repeat: usize) -> anyhow::Result<()> {

@@ -577,3 +577,44 @@ fn every_shipped_graph_validates() {
     }
     assert!(checked >= 6, "{checked} graphs");
 }
+
+#[test]
+fn registration_meets_the_acceptance_figures_on_the_full_phantom() {
+    let t = tempfile::tempdir().unwrap();
+    std::fs::copy(graph_file("register.toml"), t.path().join("register.toml")).unwrap();
+    let o = fusegraph(&["run", "register.toml"], t.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = t.path().join("out/register");
+    let r = report(&out);
+    let m = |k: &str| {
+        r["metrics"][k]
+            .as_f64()
+            .unwrap_or_else(|| panic!("no metric {k}"))
+    };
+    // The camera side has every marker both cameras see but 2, plus 1 spurious;
+    // all real ones are matched, and the start is already within 2 mm.
+    assert_eq!(m("match.inliers"), m("camera.markers") - 1.0);
+    assert!(
+        m("evaluate_markers.tre_mm") < 2.0,
+        "{}",
+        m("evaluate_markers.tre_mm")
+    );
+    assert!(
+        m("evaluate.rmse_all_mm") <= 1.0,
+        "{}",
+        m("evaluate.rmse_all_mm")
+    );
+    assert!(
+        m("evaluate.tre_max_mm") <= 1.5,
+        "{}",
+        m("evaluate.tre_max_mm")
+    );
+    for f in [
+        "camera_to_mri.json",
+        "camera_to_mri.tfm",
+        "fused_clouds.ply",
+        "icp_trace.csv",
+    ] {
+        assert!(out.join(f).metadata().unwrap().len() > 0, "{f}");
+    }
+}

@@ -28,6 +28,7 @@ pub fn register_all(registry: &mut Registry) -> Result<(), RegisterError> {
     mri::register(registry)?;
     phantom::register(registry)?;
     plot::register(registry)?;
+    register::register(registry)?;
     Ok(())
 }
 

@@ -6,6 +6,7 @@ mod path;
 mod write_json;
 mod write_markers;
 mod write_mesh;
+mod write_registration;
 mod write_rig;
 mod write_table;
 
@@ -13,6 +14,7 @@ pub use images::{grey_of, load_image, side_by_side};
 pub use write_json::value_to_json;
 pub use write_markers::{markers_csv, slicer_markups};
 pub use write_mesh::{write_ply, write_stl};
+pub use write_registration::{itk_transform_text, read_itk_transform};
 pub use write_rig::rig_yaml;
 pub use write_table::{table_csv, table_markdown};
 
@@ -26,6 +28,8 @@ pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.register(Arc::new(images::ReadImageOp::new()))?;
     registry.register(Arc::new(images::WriteStereoPairOp::new()))?;
     registry.register(Arc::new(write_rig::WriteRigOp::new()))?;
+    registry.register(Arc::new(write_registration::WriteTransformOp::new()))?;
+    registry.register(Arc::new(write_registration::WriteCloudOp::new()))?;
     registry.register(Arc::new(write_json::WriteJsonOp::new()))?;
     registry.register(Arc::new(write_markers::WriteMarkersOp::new()))?;
     registry.register(Arc::new(write_mesh::WriteMeshOp::new()))?;

@@ -4,9 +4,27 @@
 mod cloud;
 mod icp;
 mod match_markers;
+mod ops;
 mod procrustes;
 
 pub use cloud::{Nearest, estimate_normals, sample_mesh, voxel_downsample};
 pub use icp::{IcpMethod, IcpParams, IcpResult, IcpStep, Kernel, icp};
 pub use match_markers::{MarkerMatch, match_markers};
 pub use procrustes::{Similarity, umeyama};
+
+use fusegraph_engine::Registry;
+use fusegraph_engine::registry::RegisterError;
+use std::sync::Arc;
+
+/// Registers the `register.*` and `cloud.*` ops.
+pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
+    registry.register(Arc::new(ops::MatchMarkersOp::new()))?;
+    registry.register(Arc::new(ops::ProcrustesOp::new()))?;
+    registry.register(Arc::new(ops::FromMeshOp::new()))?;
+    registry.register(Arc::new(ops::DownsampleOp::new()))?;
+    registry.register(Arc::new(ops::NormalsOp::new()))?;
+    registry.register(Arc::new(ops::TransformCloudOp::new()))?;
+    registry.register(Arc::new(ops::IcpOp::new()))?;
+    registry.register(Arc::new(ops::EvaluateOp::new()))?;
+    Ok(())
+}

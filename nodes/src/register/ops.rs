@@ -1,0 +1,724 @@
+//! Node adapters of the registration stage and the point cloud helpers.
+
+use super::*;
+use crate::camera::{isometry_from_matrix, isometry_to_matrix};
+use crate::phantom::GroundTruth;
+use fusegraph_engine::value::{Markers, Mesh, PathValue, PointCloud, Table, Transform};
+use fusegraph_engine::{
+    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType,
+};
+use nalgebra::{Isometry3, Point3, Vector3};
+use std::sync::Arc;
+
+fn points3(flat: &[f64]) -> Vec<Point3<f64>> {
+    flat.chunks(3)
+        .map(|c| Point3::new(c[0], c[1], c[2]))
+        .collect()
+}
+
+fn cloud_points(c: &PointCloud) -> Vec<Point3<f64>> {
+    c.points
+        .chunks(3)
+        .map(|p| Point3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+        .collect()
+}
+
+fn cloud_normals(c: &PointCloud) -> Option<Vec<Vector3<f64>>> {
+    c.normals.as_ref().map(|n| {
+        n.chunks(3)
+            .map(|v| Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64))
+            .collect()
+    })
+}
+
+fn make_cloud(
+    points: &[Point3<f64>],
+    normals: Option<&[Vector3<f64>]>,
+    colors: Option<Arc<[u8]>>,
+    frame: &str,
+) -> Result<PointCloud, OpError> {
+    let p: Vec<f32> = points
+        .iter()
+        .flat_map(|q| [q.x as f32, q.y as f32, q.z as f32])
+        .collect();
+    let n = normals.map(|n| {
+        n.iter()
+            .flat_map(|v| [v.x as f32, v.y as f32, v.z as f32])
+            .collect::<Vec<f32>>()
+            .into()
+    });
+    PointCloud::new(p, colors, n, frame).map_err(|e| OpError::invalid(e.0))
+}
+
+/// A Transform value's isometry and frames.
+pub(crate) fn transform_isometry(t: &Transform) -> Isometry3<f64> {
+    isometry_from_matrix(&t.matrix)
+}
+
+fn transform_value(iso: &Isometry3<f64>, from: &str, to: &str) -> Transform {
+    Transform {
+        matrix: isometry_to_matrix(iso),
+        from: from.into(),
+        to: to.into(),
+    }
+}
+
+macro_rules! op_struct {
+    ($($name:ident),*) => { $(pub(crate) struct $name(OpSpec);)* };
+}
+op_struct!(
+    MatchMarkersOp,
+    ProcrustesOp,
+    FromMeshOp,
+    DownsampleOp,
+    NormalsOp,
+    TransformCloudOp,
+    IcpOp,
+    EvaluateOp
+);
+
+impl MatchMarkersOp {
+    pub(crate) fn new() -> Self {
+        MatchMarkersOp(
+            OpSpec::new(
+                "register.match_markers",
+                1,
+                "Marker correspondences without assumed order (triplet consensus)",
+            )
+            .input("source", &[ValueType::Markers], "Markers to map")
+            .input("target", &[ValueType::Markers], "Markers to map onto")
+            .param(
+                ParamSpec::float(
+                    "tolerance_mm",
+                    3.0,
+                    "mm",
+                    "Largest distance of a matched pair after the fit",
+                )
+                .at_least(0.01),
+            )
+            .param(ParamSpec::bool(
+                "scale",
+                false,
+                "Allow a uniform scale between the sets",
+            ))
+            .output(
+                "source",
+                ValueType::Markers,
+                "Matched source markers, in pair order",
+            )
+            .output(
+                "target",
+                ValueType::Markers,
+                "Matched target markers, in the same order",
+            ),
+        )
+    }
+}
+
+impl Op for MatchMarkersOp {
+    fn spec(&self) -> &OpSpec {
+        &self.0
+    }
+    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
+        let (s, t) = (
+            inputs.get::<Markers>("source")?,
+            inputs.get::<Markers>("target")?,
+        );
+        let (sp, tp) = (points3(&s.positions_mm), points3(&t.positions_mm));
+        let m = match_markers(&sp, &tp, params.float("tolerance_mm")?, params.bool("scale")?).ok_or_else(|| {
+            OpError::invalid(format!(
+                "fewer than 3 of the {} source and {} target markers can be matched within the tolerance",
+                sp.len(),
+                tp.len()
+            ))
+        })?;
+        ctx.metric("inliers", m.pairs.len() as f64);
+        ctx.metric("rmse_mm", m.rmse_mm);
+        let pick = |pts: &[Point3<f64>],
+                    ids: &[u32],
+                    which: &dyn Fn(&(usize, usize)) -> usize,
+                    frame: &str| {
+            let pos: Vec<f64> = m
+                .pairs
+                .iter()
+                .flat_map(|p| {
+                    let q = pts[which(p)];
+                    [q.x, q.y, q.z]
+                })
+                .collect();
+            let id: Vec<u32> = m.pairs.iter().map(|p| ids[which(p)]).collect();
+            Markers::new(pos, id, frame).map_err(|e| OpError::invalid(e.0))
+        };
+        Ok(Outputs::new()
+            .with("source", pick(&sp, &s.ids, &|p| p.0, &s.frame)?)
+            .with("target", pick(&tp, &t.ids, &|p| p.1, &t.frame)?))
+    }
+}
+
+impl ProcrustesOp {
+    pub(crate) fn new() -> Self {
+        ProcrustesOp(
+            OpSpec::new(
+                "register.procrustes",
+                1,
+                "Least-squares similarity (Umeyama) between corresponding markers",
+            )
+            .input("source", &[ValueType::Markers], "Source markers")
+            .input(
+                "target",
+                &[ValueType::Markers],
+                "Target markers, same order",
+            )
+            .param(ParamSpec::bool(
+                "scale",
+                false,
+                "Estimate a uniform scale (false: exactly 1)",
+            ))
+            .output(
+                "transform",
+                ValueType::Transform,
+                "Source frame -> target frame",
+            ),
+        )
+    }
+}
+
+impl Op for ProcrustesOp {
+    fn spec(&self) -> &OpSpec {
+        &self.0
+    }
+    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
+        let (s, t) = (
+            inputs.get::<Markers>("source")?,
+            inputs.get::<Markers>("target")?,
+        );
+        let (sp, tp) = (points3(&s.positions_mm), points3(&t.positions_mm));
+        if sp.len() != tp.len() {
+            return Err(OpError::invalid(format!(
+                "{} source vs {} target markers: they must correspond one to one",
+                sp.len(),
+                tp.len()
+            )));
+        }
+        let sim = umeyama(&sp, &tp, None, params.bool("scale")?)
+            .ok_or_else(|| OpError::invalid("fewer than 3 markers, or all on one line"))?;
+        ctx.metric("rmse_mm", sim.rmse(&sp, &tp));
+        ctx.metric("scale", sim.scale);
+        let m = sim.matrix();
+        Ok(Outputs::new().with(
+            "transform",
+            Transform {
+                matrix: std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)])),
+                from: s.frame.clone(),
+                to: t.frame.clone(),
+            },
+        ))
+    }
+}
+
+impl FromMeshOp {
+    pub(crate) fn new() -> Self {
+        FromMeshOp(
+            OpSpec::new(
+                "cloud.from_mesh",
+                1,
+                "A point cloud from a mesh: its vertices, or points spread uniformly by area",
+            )
+            .input("mesh", &[ValueType::Mesh], "The mesh")
+            .param(ParamSpec::choice(
+                "mode",
+                &["area", "vertices"],
+                "area: uniform sampling; vertices: the vertices",
+            ))
+            .param(
+                ParamSpec::int("points", 50_000, "", "Points to sample (area mode)")
+                    .range(1.0, 1e8),
+            )
+            .param(ParamSpec::int("seed", 1, "", "Sampling seed").at_least(0.0))
+            .output(
+                "cloud",
+                ValueType::PointCloud,
+                "Points (with normals), in the mesh's frame",
+            ),
+        )
+    }
+}
+
+impl Op for FromMeshOp {
+    fn spec(&self) -> &OpSpec {
+        &self.0
+    }
+    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
+        let mesh = inputs.get::<Mesh>("mesh")?;
+        let vertices: Vec<Point3<f64>> = mesh
+            .vertices
+            .chunks(3)
+            .map(|v| Point3::new(v[0] as f64, v[1] as f64, v[2] as f64))
+            .collect();
+        let triangles: Vec<[u32; 3]> = mesh
+            .triangles
+            .chunks(3)
+            .map(|t| [t[0], t[1], t[2]])
+            .collect();
+        let cloud = if params.string("mode")? == "vertices" {
+            let normals: Option<Vec<Vector3<f64>>> = mesh.normals.as_ref().map(|n| {
+                n.chunks(3)
+                    .map(|v| Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64))
+                    .collect()
+            });
+            make_cloud(&vertices, normals.as_deref(), None, &mesh.frame)?
+        } else {
+            let (points, normals) = sample_mesh_with_normals(
+                &vertices,
+                &triangles,
+                params.count("points")?,
+                params.int("seed")? as u64,
+            );
+            make_cloud(&points, Some(&normals), None, &mesh.frame)?
+        };
+        ctx.metric("points", cloud.len() as f64);
+        Ok(Outputs::new().with("cloud", cloud))
+    }
+}
+
+/// Area-uniform samples with the normal of the triangle each lies on.
+fn sample_mesh_with_normals(
+    vertices: &[Point3<f64>],
+    triangles: &[[u32; 3]],
+    n: usize,
+    seed: u64,
+) -> (Vec<Point3<f64>>, Vec<Vector3<f64>>) {
+    let points = sample_mesh(vertices, triangles, n, seed);
+    // The sampled triangle is not returned; take the normal of the nearest
+    // vertex's surroundings by PCA-free means: the nearest triangle centroid.
+    let centroids: Vec<Point3<f64>> = triangles
+        .iter()
+        .map(|t| {
+            Point3::from(
+                (vertices[t[0] as usize].coords
+                    + vertices[t[1] as usize].coords
+                    + vertices[t[2] as usize].coords)
+                    / 3.0,
+            )
+        })
+        .collect();
+    let tree = Nearest::new(&centroids);
+    let normals = points
+        .iter()
+        .map(|p| {
+            let Some(tree) = &tree else {
+                return Vector3::z();
+            };
+            let t = triangles[tree.nearest(p).0];
+            let [a, b, c] = t.map(|i| vertices[i as usize]);
+            (b - a)
+                .cross(&(c - a))
+                .try_normalize(1e-30)
+                .unwrap_or(Vector3::z())
+        })
+        .collect();
+    (points, normals)
+}
+
+impl DownsampleOp {
+    pub(crate) fn new() -> Self {
+        DownsampleOp(
+            OpSpec::new(
+                "cloud.downsample",
+                1,
+                "Voxel-grid downsampling: one mean point per occupied cube",
+            )
+            .input("cloud", &[ValueType::PointCloud], "The cloud")
+            .param(ParamSpec::float("voxel_mm", 2.0, "mm", "Cube side").at_least(1e-6))
+            .output(
+                "cloud",
+                ValueType::PointCloud,
+                "Downsampled cloud (no normals or colours)",
+            ),
+        )
+    }
+}
+
+impl Op for DownsampleOp {
+    fn spec(&self) -> &OpSpec {
+        &self.0
+    }
+    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
+        let c = inputs.get::<PointCloud>("cloud")?;
+        let pts = voxel_downsample(&cloud_points(&c), params.float("voxel_mm")?);
+        ctx.metric("points", pts.len() as f64);
+        Ok(Outputs::new().with("cloud", make_cloud(&pts, None, None, &c.frame)?))
+    }
+}
+
+impl NormalsOp {
+    pub(crate) fn new() -> Self {
+        NormalsOp(
+            OpSpec::new(
+                "cloud.normals",
+                1,
+                "Normals by PCA over the k nearest neighbours, oriented consistently",
+            )
+            .input("cloud", &[ValueType::PointCloud], "The cloud")
+            .param(ParamSpec::int("k", 16, "", "Neighbours").range(3.0, 1000.0))
+            .param(ParamSpec::choice(
+                "orient",
+                &["viewpoint", "outward"],
+                "Towards the viewpoint, or away from the centroid",
+            ))
+            .param(ParamSpec::float_list(
+                "viewpoint_mm",
+                &[0.0, 0.0, 0.0],
+                "mm",
+                "Viewpoint (the camera centre is the origin of camera frames)",
+            ))
+            .output(
+                "cloud",
+                ValueType::PointCloud,
+                "The cloud with unit normals",
+            ),
+        )
+    }
+}
+
+impl Op for NormalsOp {
+    fn spec(&self) -> &OpSpec {
+        &self.0
+    }
+    fn run(&self, inputs: &Inputs, params: &Params, _: &mut RunCtx) -> Result<Outputs, OpError> {
+        let c = inputs.get::<PointCloud>("cloud")?;
+        let v = params.float_list("viewpoint_mm")?;
+        let viewpoint = match (params.string("orient")?.as_str(), v.as_slice()) {
+            ("viewpoint", &[x, y, z]) => Some(Point3::new(x, y, z)),
+            ("viewpoint", _) => return Err(OpError::invalid("viewpoint_mm takes x, y, z")),
+            _ => None,
+        };
+        let pts = cloud_points(&c);
+        let normals = estimate_normals(&pts, params.count("k")?, viewpoint);
+        Ok(Outputs::new().with(
+            "cloud",
+            make_cloud(&pts, Some(&normals), c.colors.clone(), &c.frame)?,
+        ))
+    }
+}
+
+impl TransformCloudOp {
+    pub(crate) fn new() -> Self {
+        TransformCloudOp(
+            OpSpec::new(
+                "cloud.transform",
+                1,
+                "Move a cloud by a transform (or its inverse) into another frame",
+            )
+            .input("cloud", &[ValueType::PointCloud], "The cloud")
+            .input("transform", &[ValueType::Transform], "The transform")
+            .param(ParamSpec::bool(
+                "invert",
+                false,
+                "Apply the inverse (to -> from)",
+            ))
+            .output(
+                "cloud",
+                ValueType::PointCloud,
+                "The moved cloud, in the transform's other frame",
+            ),
+        )
+    }
+}
+
+impl Op for TransformCloudOp {
+    fn spec(&self) -> &OpSpec {
+        &self.0
+    }
+    fn run(&self, inputs: &Inputs, params: &Params, _: &mut RunCtx) -> Result<Outputs, OpError> {
+        let c = inputs.get::<PointCloud>("cloud")?;
+        let t = inputs.get::<Transform>("transform")?;
+        let invert = params.bool("invert")?;
+        let (iso, from, to) = if invert {
+            (transform_isometry(&t).inverse(), &t.to, &t.from)
+        } else {
+            (transform_isometry(&t), &t.from, &t.to)
+        };
+        if &c.frame != from {
+            return Err(OpError::invalid(format!(
+                "the cloud is in frame `{}`, the transform maps from `{from}`",
+                c.frame
+            )));
+        }
+        let pts: Vec<Point3<f64>> = cloud_points(&c).iter().map(|p| iso * p).collect();
+        let normals =
+            cloud_normals(&c).map(|n| n.iter().map(|v| iso.rotation * v).collect::<Vec<_>>());
+        Ok(Outputs::new().with(
+            "cloud",
+            make_cloud(&pts, normals.as_deref(), c.colors.clone(), to)?,
+        ))
+    }
+}
+
+impl IcpOp {
+    pub(crate) fn new() -> Self {
+        IcpOp(
+            OpSpec::new(
+                "register.icp",
+                1,
+                "Iterative closest point: source cloud onto target cloud",
+            )
+            .input("source", &[ValueType::PointCloud], "Cloud to move")
+            .input(
+                "target",
+                &[ValueType::PointCloud],
+                "Cloud to move onto (normals for point-to-plane)",
+            )
+            .optional_input(
+                "init",
+                &[ValueType::Transform],
+                "Start (source -> target), e.g. from markers",
+            )
+            .param(ParamSpec::choice(
+                "method",
+                &["point_to_plane", "point_to_point"],
+                "Error metric",
+            ))
+            .param(
+                ParamSpec::float(
+                    "max_distance_mm",
+                    5.0,
+                    "mm",
+                    "Pairs farther apart are ignored",
+                )
+                .at_least(1e-3),
+            )
+            .param(
+                ParamSpec::float("trim_ratio", 0.9, "", "Fraction of closest pairs kept")
+                    .range(0.05, 1.0),
+            )
+            .param(ParamSpec::choice(
+                "kernel",
+                &["huber", "tukey", "none"],
+                "Robust kernel",
+            ))
+            .param(
+                ParamSpec::float(
+                    "kernel_mm",
+                    1.5,
+                    "mm",
+                    "Kernel threshold (Huber k, Tukey c)",
+                )
+                .at_least(1e-6),
+            )
+            .param(
+                ParamSpec::int("max_iterations", 50, "", "Iterations per scale")
+                    .range(1.0, 10000.0),
+            )
+            .param(
+                ParamSpec::float(
+                    "tolerance",
+                    1e-6,
+                    "",
+                    "Relative change of RMSE and fitness that stops it",
+                )
+                .at_least(0.0),
+            )
+            .param(
+                ParamSpec::float_list(
+                    "voxel_sizes_mm",
+                    &[],
+                    "mm",
+                    "Coarse-to-fine source voxel sizes (0 = full)",
+                )
+                .at_least(0.0),
+            )
+            .output(
+                "transform",
+                ValueType::Transform,
+                "Source frame -> target frame",
+            )
+            .output(
+                "trace",
+                ValueType::Table,
+                "iteration, voxel_mm, rmse_mm, fitness, pairs",
+            ),
+        )
+    }
+}
+
+impl Op for IcpOp {
+    fn spec(&self) -> &OpSpec {
+        &self.0
+    }
+    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
+        let (s, t) = (
+            inputs.get::<PointCloud>("source")?,
+            inputs.get::<PointCloud>("target")?,
+        );
+        let init = match inputs.optional::<Transform>("init")? {
+            Some(tr) => {
+                if tr.from != s.frame || tr.to != t.frame {
+                    return Err(OpError::invalid(format!(
+                        "init maps `{}` -> `{}`, but the clouds are `{}` -> `{}`",
+                        tr.from, tr.to, s.frame, t.frame
+                    )));
+                }
+                transform_isometry(&tr)
+            }
+            None => Isometry3::identity(),
+        };
+        let (sp, tp) = (cloud_points(&s), cloud_points(&t));
+        let tn = cloud_normals(&t);
+        let tree =
+            Nearest::new(&tp).ok_or_else(|| OpError::invalid("the target cloud is empty"))?;
+        let k = params.float("kernel_mm")?;
+        let p = IcpParams {
+            method: if params.string("method")? == "point_to_point" {
+                IcpMethod::PointToPoint
+            } else {
+                IcpMethod::PointToPlane
+            },
+            max_distance_mm: params.float("max_distance_mm")?,
+            trim_ratio: params.float("trim_ratio")?,
+            kernel: match params.string("kernel")?.as_str() {
+                "huber" => Kernel::Huber(k),
+                "tukey" => Kernel::Tukey(k),
+                _ => Kernel::None,
+            },
+            max_iterations: params.count("max_iterations")?,
+            tolerance: params.float("tolerance")?,
+            voxel_sizes_mm: params.float_list("voxel_sizes_mm")?,
+        };
+        let r = icp(&sp, &tp, tn.as_deref(), &tree, &init, &p).map_err(OpError::invalid)?;
+        ctx.metric("rmse_mm", r.rmse_mm);
+        ctx.metric("fitness", r.fitness);
+        ctx.metric("iterations", r.iterations as f64);
+        let trace: Vec<f64> = r
+            .trace
+            .iter()
+            .enumerate()
+            .flat_map(|(i, st)| {
+                [
+                    i as f64,
+                    st.voxel_mm,
+                    st.rmse_mm,
+                    st.fitness,
+                    st.pairs as f64,
+                ]
+            })
+            .collect();
+        let trace = Table::new(
+            ["iteration", "voxel_mm", "rmse_mm", "fitness", "pairs"]
+                .iter()
+                .map(|c| c.to_string())
+                .collect(),
+            trace,
+        )
+        .map_err(|e| OpError::invalid(e.0))?;
+        Ok(Outputs::new()
+            .with(
+                "transform",
+                transform_value(&r.transform, &s.frame, &t.frame),
+            )
+            .with("trace", trace))
+    }
+}
+
+impl EvaluateOp {
+    pub(crate) fn new() -> Self {
+        EvaluateOp(
+            OpSpec::new("register.evaluate", 1, "Registration quality: RMSE over the overlap, and with the truth, TRE at the lesions")
+                .input("transform", &[ValueType::Transform], "Source -> target")
+                .input("source", &[ValueType::PointCloud], "Source cloud")
+                .input("target", &[ValueType::PointCloud], "Target cloud")
+                .optional_input("truth", &[ValueType::Path], "ground_truth.json (frames mri_lps and camera_left of `view`)")
+                .param(ParamSpec::float("overlap_mm", 10.0, "mm", "Source points farther than this from the target are not overlap").at_least(0.0))
+                .param(ParamSpec::float("inlier_mm", 2.0, "mm", "Pairs closer than this are inliers").at_least(0.0))
+                .param(ParamSpec::int("view", 0, "", "Phantom view whose left camera is camera_left").at_least(0.0))
+                .output("rmse_mm", ValueType::Scalar, "RMSE of the inliers, mm"),
+        )
+    }
+}
+
+/// The true MRI -> left camera transform of phantom view `view`.
+pub(crate) fn true_mri_to_camera(
+    truth: &GroundTruth,
+    view: usize,
+) -> Result<Isometry3<f64>, OpError> {
+    let v = truth.views.get(view).ok_or_else(|| {
+        OpError::invalid(format!(
+            "view {view} does not exist ({} views)",
+            truth.views.len()
+        ))
+    })?;
+    Ok(isometry_from_matrix(&v.left_camera_to_world).inverse()
+        * isometry_from_matrix(&truth.mri_to_world))
+}
+
+impl Op for EvaluateOp {
+    fn spec(&self) -> &OpSpec {
+        &self.0
+    }
+    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
+        let t = inputs.get::<Transform>("transform")?;
+        let (s, g) = (
+            inputs.get::<PointCloud>("source")?,
+            inputs.get::<PointCloud>("target")?,
+        );
+        let iso = transform_isometry(&t);
+        let tree = Nearest::new(&cloud_points(&g))
+            .ok_or_else(|| OpError::invalid("the target cloud is empty"))?;
+        let d: Vec<f64> = cloud_points(&s)
+            .iter()
+            .map(|p| tree.nearest(&(iso * p)).1.sqrt())
+            .collect();
+        let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
+        let (overlap_mm, inlier_mm) = (params.float("overlap_mm")?, params.float("inlier_mm")?);
+        let overlap: Vec<f64> = d.iter().copied().filter(|&x| x <= overlap_mm).collect();
+        let inliers: Vec<f64> = overlap
+            .iter()
+            .copied()
+            .filter(|&x| x <= inlier_mm)
+            .collect();
+        ctx.metric("rmse_all_mm", rms(&overlap));
+        ctx.metric("rmse_mm", rms(&inliers));
+        ctx.metric(
+            "inlier_fraction",
+            inliers.len() as f64 / d.len().max(1) as f64,
+        );
+        if let Some(file) = inputs.optional::<PathValue>("truth")? {
+            let truth = GroundTruth::load(&file.path).map_err(OpError::invalid)?;
+            let truth_mc = true_mri_to_camera(&truth, params.count("view")?)?;
+            let est_mc = match (t.from.as_str(), t.to.as_str()) {
+                ("mri_lps", "camera_left") => iso,
+                ("camera_left", "mri_lps") => iso.inverse(),
+                (a, b) => {
+                    return Err(OpError::invalid(format!(
+                        "transform maps `{a}` -> `{b}`; the truth knows mri_lps <-> camera_left"
+                    )));
+                }
+            };
+            // Errors where the robot acts: positions in camera space.
+            let errors: Vec<f64> = truth
+                .lesions
+                .iter()
+                .map(|l| {
+                    (est_mc * Point3::from(l.center_mri_mm)
+                        - truth_mc * Point3::from(l.center_mri_mm))
+                    .norm()
+                })
+                .collect();
+            ctx.metric(
+                "tre_mm",
+                errors.iter().sum::<f64>() / errors.len().max(1) as f64,
+            );
+            ctx.metric("tre_max_mm", errors.iter().copied().fold(0.0, f64::max));
+            ctx.metric(
+                "rotation_error_deg",
+                est_mc.rotation.angle_to(&truth_mc.rotation).to_degrees(),
+            );
+            let centre = isometry_from_matrix(&truth.phantom_to_mri) * Point3::new(0.0, 0.0, 25.0);
+            ctx.metric(
+                "translation_error_mm",
+                (est_mc * centre - truth_mc * centre).norm(),
+            );
+        }
+        Ok(Outputs::new().with("rmse_mm", rms(&inliers)))
+    }
+}

@@ -1,0 +1,131 @@
+//! Registration end to end on the phantom's truth: markers with 2 missing and 1
+//! spurious, Procrustes, point-to-plane ICP; from many initial rotations.
+
+use fusegraph_nodes::camera::isometry_from_matrix;
+use fusegraph_nodes::phantom::{
+    GroundTruth, PhantomConfig, PhantomSize, SurfaceSimParams, generate, simulate_camera_surface,
+};
+use fusegraph_nodes::register::{
+    IcpMethod, IcpParams, Kernel, Nearest, estimate_normals, icp, match_markers, umeyama,
+};
+use nalgebra::{Isometry3, Point3, Vector3};
+use std::path::Path;
+
+fn truth() -> GroundTruth {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("registration-phantom");
+    let _ = std::fs::remove_dir_all(&dir);
+    let config = PhantomConfig {
+        size: PhantomSize::Small,
+        calibration_pairs: 3,
+        views: 3,
+        ..PhantomConfig::default()
+    };
+    generate(&config, &dir).unwrap().truth
+}
+
+#[test]
+fn registration_recovers_any_initial_rotation() {
+    let truth = truth();
+    let view = 1;
+    let sim = simulate_camera_surface(
+        &truth,
+        &SurfaceSimParams {
+            view,
+            step_px: 4,
+            depth_noise_mm: 0.5,
+            lateral_noise_mm: 0.1,
+            outlier_fraction: 0.03,
+            marker_noise_mm: 0.3,
+            missing_markers: 2,
+            spurious_markers: 1,
+            seed: 9,
+        },
+    )
+    .unwrap();
+    let mri_to_world = isometry_from_matrix(&truth.mri_to_world);
+    let world_to_mri = mri_to_world.inverse();
+    let camera_to_world = isometry_from_matrix(&truth.views[view].left_camera_to_world);
+    let true_camera_to_mri = world_to_mri * camera_to_world;
+    // MRI side from the truth: gel centres and the skin, in MRI coordinates.
+    let mri_markers: Vec<Point3<f64>> = truth
+        .markers
+        .iter()
+        .map(|m| Point3::from(m.center_mri_mm))
+        .collect();
+    let mri_skin: Vec<Point3<f64>> = truth
+        .skin_world_mm
+        .iter()
+        .map(|p| world_to_mri * Point3::from(*p))
+        .collect();
+    let normals = estimate_normals(&mri_skin, 12, None);
+    let tree = Nearest::new(&mri_skin).unwrap();
+    let params = IcpParams {
+        method: IcpMethod::PointToPlane,
+        max_distance_mm: 6.0,
+        trim_ratio: 0.85,
+        kernel: Kernel::Huber(1.0),
+        max_iterations: 60,
+        tolerance: 1e-7,
+        voxel_sizes_mm: vec![4.0, 2.0, 0.0],
+    };
+    for (k, axis_angle) in [
+        Vector3::zeros(),
+        Vector3::new(0.0, 0.0, 2.5),
+        Vector3::new(1.7, 0.0, 0.0),
+        Vector3::new(-0.9, 2.2, 0.4),
+        Vector3::new(0.0, -3.0, 0.0),
+    ]
+    .iter()
+    .enumerate()
+    {
+        // Turn the whole camera side (the phantom as the cameras saw it).
+        let turn = Isometry3::new(Vector3::new(40.0, -25.0, 10.0), *axis_angle);
+        let cam_markers: Vec<Point3<f64>> = sim
+            .markers
+            .iter()
+            .map(|m| turn * Point3::from(*m))
+            .collect();
+        let cam_cloud: Vec<Point3<f64>> = sim
+            .points
+            .iter()
+            .map(|p| turn * Point3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+            .collect();
+        let truth_now = true_camera_to_mri * turn.inverse();
+        let m = match_markers(&cam_markers, &mri_markers, 4.0, false)
+            .unwrap_or_else(|| panic!("case {k}: no match"));
+        // Every pair is a true correspondence: the spurious marker is left out.
+        for &(i, j) in &m.pairs {
+            assert_eq!(
+                sim.marker_truth_ids[i],
+                Some(j as u32),
+                "case {k}: camera marker {i} matched to MRI marker {j}"
+            );
+        }
+        assert_eq!(m.pairs.len(), sim.markers.len() - 1);
+        let (s, t): (Vec<_>, Vec<_>) = m
+            .pairs
+            .iter()
+            .map(|&(i, j)| (cam_markers[i], mri_markers[j]))
+            .unzip();
+        let start = umeyama(&s, &t, None, false).unwrap().isometry();
+        let r = icp(
+            &cam_cloud,
+            &mri_skin,
+            Some(&normals),
+            &tree,
+            &start,
+            &params,
+        )
+        .unwrap();
+        let tre: f64 = truth
+            .lesions
+            .iter()
+            .map(|l| {
+                let p = Point3::from(l.center_mri_mm);
+                (r.transform.inverse() * p - truth_now.inverse() * p).norm()
+            })
+            .fold(0.0, f64::max);
+        assert!(tre <= 1.5, "case {k}: TRE {tre} mm");
+        assert!(r.rmse_mm <= 1.0, "case {k}: RMSE {} mm", r.rmse_mm);
+    }
+}

@@ -618,3 +618,22 @@ fn registration_meets_the_acceptance_figures_on_the_full_phantom() {
         assert!(out.join(f).metadata().unwrap().len() > 0, "{f}");
     }
 }
+
+#[test]
+fn multiview_merges_six_views() {
+    let t = tempfile::tempdir().unwrap();
+    std::fs::copy(
+        graph_file("multiview.toml"),
+        t.path().join("multiview.toml"),
+    )
+    .unwrap();
+    let o = fusegraph(&["run", "multiview.toml"], t.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = t.path().join("out/multiview");
+    let r = report(&out);
+    assert_eq!(r["metrics"]["merge.views"], 6.0);
+    assert!(r["metrics"]["merge.rmse_mm"].as_f64().unwrap() <= 1.0);
+    let poses = std::fs::read_to_string(out.join("view_poses.csv")).unwrap();
+    assert_eq!(poses.lines().count(), 7);
+    assert!(out.join("merged.ply").metadata().unwrap().len() > 100_000);
+}

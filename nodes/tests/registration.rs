@@ -129,3 +129,92 @@ fn registration_recovers_any_initial_rotation() {
         assert!(r.rmse_mm <= 1.0, "case {k}: RMSE {} mm", r.rmse_mm);
     }
 }
+
+#[test]
+fn six_views_merge_into_one_consistent_cloud() {
+    use fusegraph_nodes::register::{View, register_views};
+    use rand::{Rng, SeedableRng};
+    let truth = truth_with_views(6);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let mut views = Vec::new();
+    let (mut rough, mut exact) = (Vec::new(), Vec::new());
+    for v in 0..6 {
+        let sim = simulate_camera_surface(
+            &truth,
+            &SurfaceSimParams {
+                view: v,
+                step_px: 5,
+                depth_noise_mm: 0.5,
+                lateral_noise_mm: 0.1,
+                outlier_fraction: 0.03,
+                marker_noise_mm: 0.3,
+                missing_markers: 0,
+                spurious_markers: 0,
+                seed: v as u64,
+            },
+        )
+        .unwrap();
+        let points: Vec<Point3<f64>> = sim
+            .points
+            .iter()
+            .map(|p| Point3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+            .collect();
+        let normals = estimate_normals(&points, 12, Some(Point3::origin()));
+        views.push(View { points, normals });
+        let pose = isometry_from_matrix(&truth.views[v].left_camera_to_world);
+        exact.push(pose);
+        // A robot arm's pose, a couple of degrees and millimetres off.
+        let noise = Isometry3::new(
+            Vector3::new(
+                rng.random_range(-4.0..4.0),
+                rng.random_range(-4.0..4.0),
+                rng.random_range(-4.0..4.0),
+            ),
+            Vector3::new(
+                rng.random_range(-0.03..0.03),
+                rng.random_range(-0.03..0.03),
+                rng.random_range(-0.03..0.03),
+            ),
+        );
+        rough.push(if v == 0 { pose } else { pose * noise });
+    }
+    let params = IcpParams {
+        method: IcpMethod::PointToPlane,
+        max_distance_mm: 8.0,
+        trim_ratio: 0.8,
+        kernel: Kernel::Huber(1.0),
+        max_iterations: 40,
+        tolerance: 1e-7,
+        voxel_sizes_mm: vec![4.0, 0.0],
+    };
+    let m = register_views(&views, &rough, &params, 2).unwrap();
+    // Every view lands where the truth has it (view 0 is the anchor): compare
+    // where each camera sees the phantom's centre.
+    let centre = isometry_from_matrix(&truth.phantom_to_world) * Point3::new(0.0, 0.0, 25.0);
+    for v in 1..6 {
+        let seen_rough = (rough[v].inverse() * centre - exact[v].inverse() * centre).norm();
+        let seen = (m.poses[v].inverse() * centre - exact[v].inverse() * centre).norm();
+        eprintln!("view {v}: rough pose {seen_rough:.2} mm off, registered {seen:.3} mm");
+        assert!(
+            seen < 1.0,
+            "view {v}: {seen} mm off (rough pose {seen_rough} mm)"
+        );
+    }
+    assert!(
+        m.view_rmse_mm.iter().all(|&r| r < 1.0),
+        "{:?}",
+        m.view_rmse_mm
+    );
+}
+
+fn truth_with_views(views: usize) -> GroundTruth {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("registration-phantom-{views}"));
+    let _ = std::fs::remove_dir_all(&dir);
+    let config = PhantomConfig {
+        size: PhantomSize::Small,
+        calibration_pairs: 3,
+        views,
+        ..PhantomConfig::default()
+    };
+    generate(&config, &dir).unwrap().truth
+}

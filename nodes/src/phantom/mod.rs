@@ -32,5 +32,6 @@ use std::sync::Arc;
 pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.register(Arc::new(ops::GenerateOp::new()))?;
     registry.register(Arc::new(ops::CameraSurfaceOp::new()))?;
+    registry.register(Arc::new(ops::RigPoseOp::new()))?;
     Ok(())
 }

@@ -179,3 +179,79 @@ impl Op for CameraSurfaceOp {
         Ok(Outputs::new().with("cloud", cloud).with("markers", markers))
     }
 }
+
+pub(crate) struct RigPoseOp(OpSpec);
+
+impl RigPoseOp {
+    pub(crate) fn new() -> Self {
+        RigPoseOp(
+            OpSpec::new(
+                "phantom.rig_pose",
+                1,
+                "A phantom view's left camera pose, as a robot arm would report it (with noise)",
+            )
+            .input(
+                "truth",
+                &[ValueType::Path],
+                "ground_truth.json of a phantom",
+            )
+            .param(ParamSpec::int("view", 0, "", "Which view pair").at_least(0.0))
+            .param(
+                ParamSpec::float("noise_mm", 0.0, "mm", "Uniform position error, each axis")
+                    .at_least(0.0),
+            )
+            .param(
+                ParamSpec::float("noise_deg", 0.0, "deg", "Uniform rotation error, each axis")
+                    .at_least(0.0),
+            )
+            .param(ParamSpec::int("seed", 1, "", "Seed of the noise").at_least(0.0))
+            .output("pose", ValueType::Transform, "camera_left -> world"),
+        )
+    }
+}
+
+impl Op for RigPoseOp {
+    fn spec(&self) -> &OpSpec {
+        &self.0
+    }
+
+    fn run(&self, inputs: &Inputs, params: &Params, _: &mut RunCtx) -> Result<Outputs, OpError> {
+        use rand::{Rng, SeedableRng};
+        let truth_file: std::sync::Arc<PathValue> = inputs.get("truth")?;
+        let truth = GroundTruth::load(&truth_file.path).map_err(OpError::invalid)?;
+        let view = params.count("view")?;
+        let v = truth.views.get(view).ok_or_else(|| {
+            OpError::invalid(format!(
+                "view {view} does not exist ({} views)",
+                truth.views.len()
+            ))
+        })?;
+        let (mm, deg) = (
+            params.float("noise_mm")?,
+            params.float("noise_deg")?.to_radians(),
+        );
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(
+            params.int("seed")? as u64 ^ (view as u64) << 32,
+        );
+        let mut draw = |a: f64| {
+            if a > 0.0 {
+                rng.random_range(-a..a)
+            } else {
+                0.0
+            }
+        };
+        let noise = nalgebra::Isometry3::new(
+            nalgebra::Vector3::new(draw(mm), draw(mm), draw(mm)),
+            nalgebra::Vector3::new(draw(deg), draw(deg), draw(deg)),
+        );
+        let pose = crate::camera::isometry_from_matrix(&v.left_camera_to_world) * noise;
+        Ok(Outputs::new().with(
+            "pose",
+            fusegraph_engine::value::Transform {
+                matrix: crate::camera::isometry_to_matrix(&pose),
+                from: "camera_left".into(),
+                to: "world".into(),
+            },
+        ))
+    }
+}

@@ -4,12 +4,14 @@
 mod cloud;
 mod icp;
 mod match_markers;
+mod multiview;
 mod ops;
 mod procrustes;
 
 pub use cloud::{Nearest, estimate_normals, sample_mesh, voxel_downsample};
 pub use icp::{IcpMethod, IcpParams, IcpResult, IcpStep, Kernel, icp};
 pub use match_markers::{MarkerMatch, match_markers};
+pub use multiview::{Multiview, View, register_views};
 pub use procrustes::{Similarity, umeyama};
 
 use fusegraph_engine::Registry;
@@ -26,5 +28,6 @@ pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.register(Arc::new(ops::TransformCloudOp::new()))?;
     registry.register(Arc::new(ops::IcpOp::new()))?;
     registry.register(Arc::new(ops::EvaluateOp::new()))?;
+    registry.register(Arc::new(ops::MultiviewOp::new()))?;
     Ok(())
 }

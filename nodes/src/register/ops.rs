@@ -74,8 +74,12 @@ op_struct!(
     NormalsOp,
     TransformCloudOp,
     IcpOp,
-    EvaluateOp
+    EvaluateOp,
+    MultiviewOp
 );
+
+/// Views `register.multiview` accepts.
+const MAX_VIEWS: usize = 8;
 
 impl MatchMarkersOp {
     pub(crate) fn new() -> Self {
@@ -720,5 +724,154 @@ impl Op for EvaluateOp {
             );
         }
         Ok(Outputs::new().with("rmse_mm", rms(&inliers)))
+    }
+}
+
+impl MultiviewOp {
+    pub(crate) fn new() -> Self {
+        let mut spec = OpSpec::new(
+            "register.multiview",
+            1,
+            "Several camera clouds with rough poses -> one cloud: pairwise ICP around the ring, then global adjustment",
+        );
+        for i in 0..MAX_VIEWS {
+            let doc = format!("View {i}'s cloud, in its camera frame");
+            let pose_doc = format!("View {i}'s rough camera -> world pose");
+            spec = if i < 2 {
+                spec.input(&format!("cloud{i}"), &[ValueType::PointCloud], &doc)
+                    .input(&format!("pose{i}"), &[ValueType::Transform], &pose_doc)
+            } else {
+                spec.optional_input(&format!("cloud{i}"), &[ValueType::PointCloud], &doc)
+                    .optional_input(&format!("pose{i}"), &[ValueType::Transform], &pose_doc)
+            };
+        }
+        MultiviewOp(
+            spec.param(
+                ParamSpec::float(
+                    "max_distance_mm",
+                    8.0,
+                    "mm",
+                    "ICP: pairs farther apart are ignored",
+                )
+                .at_least(1e-3),
+            )
+            .param(
+                ParamSpec::float("trim_ratio", 0.8, "", "ICP: fraction of closest pairs kept")
+                    .range(0.05, 1.0),
+            )
+            .param(ParamSpec::float("kernel_mm", 1.0, "mm", "ICP: Huber threshold").at_least(1e-6))
+            .param(
+                ParamSpec::float_list(
+                    "voxel_sizes_mm",
+                    &[4.0, 0.0],
+                    "mm",
+                    "ICP: coarse-to-fine voxel sizes (0 = full)",
+                )
+                .at_least(0.0),
+            )
+            .param(ParamSpec::int("rounds", 2, "", "Rounds of global adjustment").range(1.0, 20.0))
+            .param(
+                ParamSpec::int(
+                    "normals_k",
+                    12,
+                    "",
+                    "Neighbours for normals of clouds without them",
+                )
+                .range(3.0, 200.0),
+            )
+            .output(
+                "cloud",
+                ValueType::PointCloud,
+                "All views in the world frame, coloured by view",
+            )
+            .output(
+                "poses",
+                ValueType::Table,
+                "view, then the 3 x 4 camera -> world matrix row by row (mm)",
+            ),
+        )
+    }
+}
+
+impl Op for MultiviewOp {
+    fn spec(&self) -> &OpSpec {
+        &self.0
+    }
+    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
+        let k = params.count("normals_k")?;
+        let (mut views, mut rough) = (Vec::new(), Vec::new());
+        for i in 0..MAX_VIEWS {
+            let cloud = inputs.optional::<PointCloud>(&format!("cloud{i}"))?;
+            let pose = inputs.optional::<Transform>(&format!("pose{i}"))?;
+            match (cloud, pose) {
+                (Some(c), Some(t)) => {
+                    if t.from != c.frame || t.to != "world" {
+                        return Err(OpError::invalid(format!(
+                            "pose{i} maps `{}` -> `{}`; it must map the cloud's frame `{}` -> `world`",
+                            t.from, t.to, c.frame
+                        )));
+                    }
+                    let points = cloud_points(&c);
+                    let normals = match cloud_normals(&c) {
+                        Some(n) => n,
+                        None => estimate_normals(&points, k, Some(Point3::origin())),
+                    };
+                    views.push(View { points, normals });
+                    rough.push(transform_isometry(&t));
+                }
+                (None, None) => {}
+                _ => {
+                    return Err(OpError::invalid(format!(
+                        "view {i}: connect both cloud{i} and pose{i}, or neither"
+                    )));
+                }
+            }
+        }
+        let p = IcpParams {
+            method: IcpMethod::PointToPlane,
+            max_distance_mm: params.float("max_distance_mm")?,
+            trim_ratio: params.float("trim_ratio")?,
+            kernel: Kernel::Huber(params.float("kernel_mm")?),
+            max_iterations: 40,
+            tolerance: 1e-7,
+            voxel_sizes_mm: params.float_list("voxel_sizes_mm")?,
+        };
+        let m = register_views(&views, &rough, &p, params.count("rounds")?)
+            .map_err(OpError::invalid)?;
+        let rmse = m.view_rmse_mm.iter().sum::<f64>() / m.view_rmse_mm.len() as f64;
+        ctx.metric("rmse_mm", rmse);
+        ctx.metric("views", views.len() as f64);
+        for (i, r) in m.pairwise_rmse_mm.iter().enumerate() {
+            ctx.metric(&format!("pair_{i}_rmse_mm"), *r);
+        }
+        let palette: [[u8; 3]; MAX_VIEWS] = [
+            [230, 90, 60],
+            [60, 160, 230],
+            [90, 200, 90],
+            [230, 200, 60],
+            [180, 90, 220],
+            [60, 210, 200],
+            [240, 140, 190],
+            [150, 150, 150],
+        ];
+        let (mut pts, mut colors) = (Vec::new(), Vec::new());
+        let mut table = Vec::new();
+        for (i, (view, pose)) in views.iter().zip(&m.poses).enumerate() {
+            pts.extend(view.points.iter().map(|p| pose * p));
+            colors.extend(std::iter::repeat_n(palette[i], view.points.len()).flatten());
+            let h = pose.to_homogeneous();
+            table.push(i as f64);
+            table.extend((0..3).flat_map(|r| (0..4).map(move |c| h[(r, c)])));
+        }
+        let columns: Vec<String> = std::iter::once("view".to_string())
+            .chain((0..3).flat_map(|r| (0..4).map(move |c| format!("m{r}{c}"))))
+            .collect();
+        let poses = Table::new(columns, table).map_err(|e| OpError::invalid(e.0))?;
+        Ok(Outputs::new()
+            .with(
+                "cloud",
+                make_cloud(&pts, None, Some(colors.into()), "world")?,
+            )
+            .with("poses", poses))
     }
 }

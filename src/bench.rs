@@ -99,25 +99,16 @@ pub fn run_bench(what: BenchCommand, registry: &Registry) -> anyhow::Result<()> 
 }
 
 fn icp_bench(n: usize, iterations: usize, out: Option<&std::path::Path>) -> anyhow::Result<()> {
-    use fusegraph_nodes::register::{IcpMethod, IcpParams, Kernel, Nearest, estimate_normals, icp};
-    use nalgebra::{Isometry3, Point3, Vector3};
-    let cloud = |n: usize, phase: f64| -> Vec<Point3<f64>> {
-        (0..n)
-            .map(|i| {
-                let z = 1.0 - 2.0 * (i as f64 + phase) / n as f64;
-                let a = (i as f64 + phase) * 2.399963;
-                let r = (1.0 - z * z).sqrt();
-                let (x, y) = (r * a.cos(), r * a.sin());
-                let bump = 1.0
-                    + 0.12 * (3.0 * x + 1.0).sin() * (2.0 * y).cos()
-                    + 0.08 * (4.0 * z * x).sin();
-                Point3::new(60.0 * x * bump, 45.0 * y * bump, 35.0 * z * bump)
-            })
-            .collect()
+    use fusegraph_nodes::register::{
+        IcpMethod, IcpParams, Kernel, Nearest, bumpy_ellipsoid, estimate_normals, icp,
     };
-    let target = cloud(n, 0.5);
+    use nalgebra::{Isometry3, Point3, Vector3};
+    let target = bumpy_ellipsoid(n, 0.5);
     let offset = Isometry3::new(Vector3::new(4.0, -2.0, 1.0), Vector3::new(0.0, 0.03, 0.04));
-    let source: Vec<Point3<f64>> = cloud(n, 0.25).iter().map(|p| offset * p).collect();
+    let source: Vec<Point3<f64>> = bumpy_ellipsoid(n, 0.25)
+        .iter()
+        .map(|p| offset * p)
+        .collect();
     let t = Instant::now();
     let normals = estimate_normals(&target, 16, None);
     let normals_ms = t.elapsed().as_secs_f64() * 1e3;

@@ -47,6 +47,23 @@ impl Nearest {
     }
 }
 
+/// `n` points of a bumpy ellipsoid (semi-axes about 60, 45, 35 mm) with no
+/// symmetry, spread by a golden-angle spiral whose start `phase` (0..1) shifts
+/// the samples: a shape for ICP tests and benchmarks.
+pub fn bumpy_ellipsoid(n: usize, phase: f64) -> Vec<Point3<f64>> {
+    (0..n)
+        .map(|i| {
+            let z = 1.0 - 2.0 * (i as f64 + phase) / n as f64;
+            let a = (i as f64 + phase) * 2.399963;
+            let r = (1.0 - z * z).sqrt();
+            let (x, y) = (r * a.cos(), r * a.sin());
+            let bump =
+                1.0 + 0.12 * (3.0 * x + 1.0).sin() * (2.0 * y).cos() + 0.08 * (4.0 * z * x).sin();
+            Point3::new(60.0 * x * bump, 45.0 * y * bump, 35.0 * z * bump)
+        })
+        .collect()
+}
+
 /// `n` points spread uniformly by area over a triangle mesh (seeded).
 pub fn sample_mesh(
     vertices: &[Point3<f64>],

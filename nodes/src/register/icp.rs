@@ -224,21 +224,8 @@ mod tests {
     use super::super::cloud::estimate_normals;
     use super::*;
 
-    /// A bumpy ellipsoid with no symmetry (semi-axes 60, 45, 35 mm).
     fn surface() -> Vec<Point3<f64>> {
-        let n = 6000;
-        (0..n)
-            .map(|i| {
-                let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
-                let a = i as f64 * 2.399963;
-                let r = (1.0 - z * z).sqrt();
-                let (x, y) = (r * a.cos(), r * a.sin());
-                let bump = 1.0
-                    + 0.12 * (3.0 * x + 1.0).sin() * (2.0 * y).cos()
-                    + 0.08 * (4.0 * z * x).sin();
-                Point3::new(60.0 * x * bump, 45.0 * y * bump, 35.0 * z * bump)
-            })
-            .collect()
+        super::super::cloud::bumpy_ellipsoid(6000, 0.5)
     }
 
     fn check(method: IcpMethod, partial: bool, offset_deg: f64, offset_mm: f64) {

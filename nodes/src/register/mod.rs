@@ -8,7 +8,7 @@ mod multiview;
 mod ops;
 mod procrustes;
 
-pub use cloud::{Nearest, estimate_normals, sample_mesh, voxel_downsample};
+pub use cloud::{Nearest, bumpy_ellipsoid, estimate_normals, sample_mesh, voxel_downsample};
 pub use icp::{IcpMethod, IcpParams, IcpResult, IcpStep, Kernel, icp};
 pub use match_markers::{MarkerMatch, match_markers};
 pub use multiview::{Multiview, View, register_views};

@@ -610,13 +610,20 @@ fn registration_meets_the_acceptance_figures_on_the_full_phantom() {
         m("evaluate.tre_max_mm")
     );
     for f in [
-        "camera_to_mri.json",
-        "camera_to_mri.tfm",
+        "mri_to_camera.json",
+        "mri_to_camera.tfm",
         "fused_clouds.ply",
         "icp_trace.csv",
     ] {
         assert!(out.join(f).metadata().unwrap().len() > 0, "{f}");
     }
+    let written: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("mri_to_camera.json")).unwrap())
+            .unwrap();
+    assert_eq!(
+        (written["from"].as_str(), written["to"].as_str()),
+        (Some("mri_lps"), Some("camera_left"))
+    );
 }
 
 #[test]

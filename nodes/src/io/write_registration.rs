@@ -8,11 +8,12 @@ use fusegraph_engine::{
 };
 use std::sync::Arc;
 
-/// An ITK text transform holding the *inverse* of `matrix` (row-major 4x4),
-/// because ITK stores resampling transforms, which map points of the fixed
-/// space to the moving space: a registration moving MRI (moving) onto the
-/// camera (fixed) is written as camera -> MRI, and 3D Slicer then applies it to
-/// the MRI as intended. Coordinates are taken as LPS, as ITK's are.
+/// An ITK text transform holding the *inverse* of `matrix` (row-major 4x4,
+/// mapping the moving data's frame `from` onto the fixed frame `to`), because
+/// ITK stores resampling transforms, which map points of the fixed space to the
+/// moving space: MRI -> camera is written as camera -> MRI, and 3D Slicer then
+/// moves the MRI into camera space as intended. Coordinates are taken as LPS, as
+/// ITK's are.
 pub fn itk_transform_text(matrix: &[[f64; 4]; 4]) -> Option<String> {
     let m = nalgebra::Matrix4::from_fn(|r, c| matrix[r][c]).try_inverse()?;
     let mut params: Vec<String> = Vec::new();
@@ -70,6 +71,11 @@ impl WriteTransformOp {
                 "transform",
                 "Base name: writes NAME.json and NAME.tfm",
             ))
+            .param(ParamSpec::bool(
+                "invert",
+                false,
+                "Write the inverse (to -> from), e.g. MRI -> camera from an ICP that ran camera -> MRI",
+            ))
             .output("json", ValueType::Path, "The JSON file")
             .output(
                 "itk",
@@ -86,7 +92,19 @@ impl Op for WriteTransformOp {
         &self.0
     }
     fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
-        let t = inputs.get::<Transform>("transform")?;
+        let given = inputs.get::<Transform>("transform")?;
+        let t = if params.bool("invert")? {
+            let m = nalgebra::Matrix4::from_fn(|r, c| given.matrix[r][c])
+                .try_inverse()
+                .ok_or_else(|| OpError::invalid("the transform is singular"))?;
+            Arc::new(Transform {
+                matrix: std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)])),
+                from: given.to.clone(),
+                to: given.from.clone(),
+            })
+        } else {
+            given
+        };
         let name = params.string("file")?;
         let json = ctx.output_path(&format!("{name}.json"))?;
         std::fs::write(

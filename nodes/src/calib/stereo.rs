@@ -184,24 +184,15 @@ pub fn calibrate_stereo(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calib::camera_calibration::tests::{true_camera, true_poses, views_of};
-    use nalgebra::{Translation3, UnitQuaternion, Vector3};
+    use crate::calib::camera_calibration::tests::{true_poses, views_of};
 
     #[test]
     fn recovers_the_rig_from_exact_corners() {
-        let left = true_camera();
-        let right = CameraModel {
-            fx: 1338.0,
-            fy: 1337.5,
-            cx: 396.5,
-            cy: 302.9,
-            distortion: [-0.109, 0.131, -0.00048, 0.00033, 0.0],
-            ..left.clone()
-        };
-        let rig = Isometry3::from_parts(
-            Translation3::new(-54.49, 0.0, 7.49),
-            UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 7.83f64.to_radians(), 0.0)),
-        );
+        let crate::phantom::Rig {
+            left,
+            right,
+            left_to_right: rig,
+        } = crate::phantom::Rig::paper_rig();
         let poses = true_poses();
         let lefts = views_of(&left, &poses);
         let rights = views_of(&right, &poses.iter().map(|p| rig * p).collect::<Vec<_>>());

@@ -50,6 +50,23 @@ fn make_cloud(
     PointCloud::new(p, colors, n, frame).map_err(|e| OpError::invalid(e.0))
 }
 
+/// The `source` and `target` markers and their positions.
+type MarkerInputs = (
+    Arc<Markers>,
+    Arc<Markers>,
+    Vec<Point3<f64>>,
+    Vec<Point3<f64>>,
+);
+
+fn marker_inputs(inputs: &Inputs) -> Result<MarkerInputs, OpError> {
+    let (s, t) = (
+        inputs.get::<Markers>("source")?,
+        inputs.get::<Markers>("target")?,
+    );
+    let (sp, tp) = (points3(&s.positions_mm), points3(&t.positions_mm));
+    Ok((s, t, sp, tp))
+}
+
 /// A Transform value's isometry and frames.
 pub(crate) fn transform_isometry(t: &Transform) -> Isometry3<f64> {
     isometry_from_matrix(&t.matrix)
@@ -124,11 +141,7 @@ impl Op for MatchMarkersOp {
         &self.0
     }
     fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
-        let (s, t) = (
-            inputs.get::<Markers>("source")?,
-            inputs.get::<Markers>("target")?,
-        );
-        let (sp, tp) = (points3(&s.positions_mm), points3(&t.positions_mm));
+        let (s, t, sp, tp) = marker_inputs(inputs)?;
         let m = match_markers(&sp, &tp, params.float("tolerance_mm")?, params.bool("scale")?).ok_or_else(|| {
             OpError::invalid(format!(
                 "fewer than 3 of the {} source and {} target markers can be matched within the tolerance",
@@ -192,11 +205,7 @@ impl Op for ProcrustesOp {
         &self.0
     }
     fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
-        let (s, t) = (
-            inputs.get::<Markers>("source")?,
-            inputs.get::<Markers>("target")?,
-        );
-        let (sp, tp) = (points3(&s.positions_mm), points3(&t.positions_mm));
+        let (s, t, sp, tp) = marker_inputs(inputs)?;
         if sp.len() != tp.len() {
             return Err(OpError::invalid(format!(
                 "{} source vs {} target markers: they must correspond one to one",

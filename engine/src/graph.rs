@@ -137,7 +137,8 @@ impl GraphDoc {
     }
 
     /// Applies one `--set ID.KEY=VALUE` override: `ID.op=NAME` swaps the op,
-    /// `ID.in.PORT=node.port` rewires an input, any other key sets a parameter.
+    /// `ID.in.PORT=node.port` rewires an input (`ID.in.PORT=` disconnects it),
+    /// any other key sets a parameter.
     /// VALUE is read as TOML (`2`, `true`, `[1, 2]`, `"s"`); anything that is not
     /// valid TOML is taken as a plain string.
     pub fn apply_set(&mut self, assignment: &str) -> Result<(), GraphError> {
@@ -176,9 +177,13 @@ impl GraphDoc {
             let src = value
                 .as_str()
                 .ok_or_else(|| node_err("an input must be \"node.port\""))?;
-            let input = parse_input(port, src).map_err(|m| node_err(&m))?;
             node.inputs.retain(|i| i.port != port);
-            node.inputs.push(input);
+            // An empty source disconnects the input (validation then says if
+            // it was required).
+            if !src.is_empty() {
+                node.inputs
+                    .push(parse_input(port, src).map_err(|m| node_err(&m))?);
+            }
         } else {
             match node.params.iter_mut().find(|(k, _)| k == key) {
                 Some((_, v)) => *v = value,
@@ -446,6 +451,11 @@ operation = "mul"
         assert_eq!(
             g.nodes[1].params[1].1,
             toml::Value::String("some text".into())
+        );
+        g.apply_set("b.in.b=").unwrap();
+        assert!(
+            g.nodes[1].inputs.iter().all(|i| i.port != "b"),
+            "disconnected"
         );
         let e = g.apply_set("aa.value=1").unwrap_err();
         assert_eq!(e.kind, ErrorKind::BadOverride);

@@ -330,6 +330,14 @@ fn overrides_are_validated_the_same_way() {
         Some("value"),
         &["no node with this id"],
     );
+    let errs = errors(OK, &["b.in.a="]);
+    expect(
+        &errs,
+        ErrorKind::MissingInput,
+        "b",
+        Some("in.a"),
+        &["required input not connected"],
+    );
     let errs = errors(OK, &["b.op=test.nope"]);
     expect(
         &errs,

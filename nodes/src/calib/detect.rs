@@ -14,7 +14,7 @@ use nalgebra::{Point2, Vector2};
 use std::collections::HashMap;
 
 /// Smooths with a Gaussian of `sigma` px (separable, clamped borders).
-fn gaussian(img: &[f32], w: usize, h: usize, sigma: f64) -> Vec<f32> {
+pub(crate) fn gaussian(img: &[f32], w: usize, h: usize, sigma: f64) -> Vec<f32> {
     let r = (3.0 * sigma).ceil() as isize;
     let k: Vec<f32> = (-r..=r)
         .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp() as f32)

@@ -94,38 +94,9 @@ mod tests {
                 img[x + y * w] = (acc / 1024.0) as f32;
             }
         }
-        blur(&img, w, h, 0.7)
-    }
-
-    /// Lens blur (Gaussian, sigma px): real images are never box-sharp, and the
-    /// method assumes a symmetric point spread.
-    fn blur(img: &[f32], w: usize, h: usize, sigma: f64) -> Vec<f32> {
-        let r = (3.0 * sigma).ceil() as isize;
-        let k: Vec<f64> = (-r..=r)
-            .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp())
-            .collect();
-        let total: f64 = k.iter().sum();
-        let pass = |src: &[f32], dx: isize, dy: isize| -> Vec<f32> {
-            (0..w * h)
-                .map(|i| {
-                    let (x, y) = ((i % w) as isize, (i / w) as isize);
-                    let sum: f64 = k
-                        .iter()
-                        .enumerate()
-                        .map(|(j, kw)| {
-                            let o = j as isize - r;
-                            let (sx, sy) = (
-                                (x + o * dx).clamp(0, w as isize - 1),
-                                (y + o * dy).clamp(0, h as isize - 1),
-                            );
-                            kw * src[(sy * w as isize + sx) as usize] as f64
-                        })
-                        .sum();
-                    (sum / total) as f32
-                })
-                .collect()
-        };
-        pass(&pass(img, 1, 0), 0, 1)
+        // Lens blur: real images are never box-sharp, and the method assumes a
+        // symmetric point spread.
+        crate::calib::detect::gaussian(&img, w, h, 0.7)
     }
 
     #[test]

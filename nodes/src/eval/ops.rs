@@ -2,17 +2,12 @@
 
 use super::{compare_calibration, compare_markers, skin_distances};
 use crate::camera::isometry_from_matrix;
-use crate::phantom::GroundTruth;
-use fusegraph_engine::value::{Markers, Mesh, PathValue, Rectification, StereoRig};
+use crate::phantom::truth_input;
+use fusegraph_engine::value::{Markers, Mesh, Rectification, StereoRig};
 use fusegraph_engine::{
     Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType,
 };
 use std::sync::Arc;
-
-fn truth(inputs: &Inputs) -> Result<GroundTruth, OpError> {
-    let file: Arc<PathValue> = inputs.get("truth")?;
-    GroundTruth::load(&file.path).map_err(OpError::invalid)
-}
 
 pub(crate) struct EvalMarkersOp(OpSpec);
 
@@ -52,7 +47,7 @@ impl Op for EvalMarkersOp {
 
     fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
         let markers = inputs.get::<Markers>("markers")?;
-        let truth = truth(inputs)?;
+        let truth = truth_input(inputs)?;
         let reference = params.string("reference")?;
         let (expected_frame, centres): (&str, Vec<[f64; 3]>) = match reference.as_str() {
             "mri_gel" => (
@@ -143,7 +138,7 @@ impl Op for EvalSkinOp {
 
     fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
         let mesh = inputs.get::<Mesh>("mesh")?;
-        let truth = truth(inputs)?;
+        let truth = truth_input(inputs)?;
         let to_phantom = match mesh.frame.as_str() {
             "mri_lps" => isometry_from_matrix(&truth.phantom_to_mri).inverse(),
             "world" => isometry_from_matrix(&truth.phantom_to_world).inverse(),
@@ -207,7 +202,7 @@ impl Op for EvalCalibrationOp {
 
     fn run(&self, inputs: &Inputs, _: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
         let rig = inputs.get::<StereoRig>("rig")?;
-        let truth = truth(inputs)?;
+        let truth = truth_input(inputs)?;
         let rect: Option<Arc<Rectification>> = inputs.optional("rectification")?;
         let rect = rect.map(|r| crate::calib::rectification_of(&r));
         let (l, r) = (

@@ -19,6 +19,7 @@ mod truth;
 
 pub use camera_surface::{SimulatedSurface, SurfaceSimParams, simulate_camera_surface};
 pub use generate::{Generated, PhantomConfig, PhantomSize, generate};
+pub(crate) use ops::{optional_truth_input, truth_input};
 pub use rig::Rig;
 pub use scenes::MARKER_GREEN;
 pub use shape::{Lesion, Marker, Material, PhantomShape, ShapeParams};

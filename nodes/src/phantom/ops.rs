@@ -152,8 +152,7 @@ impl Op for CameraSurfaceOp {
     }
 
     fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
-        let truth_file: std::sync::Arc<PathValue> = inputs.get("truth")?;
-        let truth = GroundTruth::load(&truth_file.path).map_err(OpError::invalid)?;
+        let truth = truth_input(inputs)?;
         let p = SurfaceSimParams {
             view: params.count("view")?,
             step_px: params.count("step_px")?,
@@ -217,8 +216,7 @@ impl Op for RigPoseOp {
 
     fn run(&self, inputs: &Inputs, params: &Params, _: &mut RunCtx) -> Result<Outputs, OpError> {
         use rand::{Rng, SeedableRng};
-        let truth_file: std::sync::Arc<PathValue> = inputs.get("truth")?;
-        let truth = GroundTruth::load(&truth_file.path).map_err(OpError::invalid)?;
+        let truth = truth_input(inputs)?;
         let view = params.count("view")?;
         let v = truth.views.get(view).ok_or_else(|| {
             OpError::invalid(format!(
@@ -254,4 +252,20 @@ impl Op for RigPoseOp {
             },
         ))
     }
+}
+
+/// The ground truth on an optional `truth` input (a ground_truth.json path).
+pub(crate) fn optional_truth_input(inputs: &Inputs) -> Result<Option<GroundTruth>, OpError> {
+    match inputs.optional::<PathValue>("truth")? {
+        Some(file) => GroundTruth::load(&file.path)
+            .map(Some)
+            .map_err(OpError::invalid),
+        None => Ok(None),
+    }
+}
+
+/// The ground truth on a required `truth` input.
+pub(crate) fn truth_input(inputs: &Inputs) -> Result<GroundTruth, OpError> {
+    optional_truth_input(inputs)?
+        .ok_or_else(|| OpError::Input("truth".into(), "not connected".into()))
 }

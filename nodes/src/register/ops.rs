@@ -3,7 +3,7 @@
 use super::*;
 use crate::camera::{isometry_from_matrix, isometry_to_matrix};
 use crate::phantom::GroundTruth;
-use fusegraph_engine::value::{Markers, Mesh, PathValue, PointCloud, Table, Transform};
+use fusegraph_engine::value::{Markers, Mesh, PointCloud, Table, Transform};
 use fusegraph_engine::{
     Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType,
 };
@@ -695,8 +695,7 @@ impl Op for EvaluateOp {
             "inlier_fraction",
             inliers.len() as f64 / d.len().max(1) as f64,
         );
-        if let Some(file) = inputs.optional::<PathValue>("truth")? {
-            let truth = GroundTruth::load(&file.path).map_err(OpError::invalid)?;
+        if let Some(truth) = crate::phantom::optional_truth_input(inputs)? {
             let truth_mc = true_mri_to_camera(&truth, params.count("view")?)?;
             let est_mc = match (t.from.as_str(), t.to.as_str()) {
                 ("mri_lps", "camera_left") => iso,

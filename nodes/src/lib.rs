@@ -13,6 +13,7 @@ pub mod mri;
 pub mod phantom;
 pub mod plot;
 pub mod register;
+pub mod stereo;
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;
@@ -29,6 +30,7 @@ pub fn register_all(registry: &mut Registry) -> Result<(), RegisterError> {
     phantom::register(registry)?;
     plot::register(registry)?;
     register::register(registry)?;
+    stereo::register(registry)?;
     Ok(())
 }
 

@@ -1,0 +1,20 @@
+//! The camera surface from images (the paper's module C, steps 3-5): feature
+//! matches that bound the disparity range, dense matchers (block matching and
+//! semi-global matching), triangulation into a metric cloud in the left camera
+//! frame, and the coloured markers found in both images and triangulated.
+//!
+//! Frames: pixel coordinates are in the *rectified* images (px, integer values
+//! at pixel centres, OpenCV); disparity is `x_left - x_right` in px; 3D points
+//! are in mm in the original (unrectified) left camera frame `camera_left`.
+
+mod triangulate;
+
+pub use triangulate::point_from_disparity;
+
+use fusegraph_engine::Registry;
+use fusegraph_engine::registry::RegisterError;
+
+/// Registers the `stereo.*` ops.
+pub fn register(_registry: &mut Registry) -> Result<(), RegisterError> {
+    Ok(())
+}

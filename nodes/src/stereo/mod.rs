@@ -7,14 +7,38 @@
 //! at pixel centres, OpenCV); disparity is `x_left - x_right` in px; 3D points
 //! are in mm in the original (unrectified) left camera frame `camera_left`.
 
+mod block_match;
+mod cost;
+mod dense;
+mod dense_ops;
+mod filter;
+mod pair;
+mod refine;
+mod select;
+mod sgm;
+mod simd;
 mod triangulate;
 
+pub use block_match::{BlockCost, block_match};
+pub use cost::{CostVolume, bt_costs, census_costs, census_transform};
+pub use dense::{MatchCost, SgmConfig, sgm_disparity};
+pub use dense_ops::triangulate_disparity;
+pub use filter::filter_speckles;
+pub use pair::{DisparityRange, GreyImage, check_pair};
+pub use refine::{RefineParams, refine_disparity};
+pub use select::{SelectParams, select};
+pub use sgm::{Aggregated, Paths, SgmParams, aggregate};
+pub use simd::Isa;
 pub use triangulate::point_from_disparity;
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;
+use std::sync::Arc;
 
 /// Registers the `stereo.*` ops.
-pub fn register(_registry: &mut Registry) -> Result<(), RegisterError> {
+pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
+    registry.register(Arc::new(dense_ops::SgmOp::new()))?;
+    registry.register(Arc::new(dense_ops::BlockMatchOp::new()))?;
+    registry.register(Arc::new(dense_ops::TriangulateOp::new()))?;
     Ok(())
 }

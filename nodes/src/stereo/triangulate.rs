@@ -23,7 +23,8 @@ pub fn point_from_disparity(
         return None;
     }
     let rectified = Point3::new(h.x / h.w, h.y / h.w, h.z / h.w);
-    if !(rectified.z > 0.0) || !rectified.coords.iter().all(|c| c.is_finite()) {
+    if rectified.z.is_nan() || rectified.z <= 0.0 || !rectified.coords.iter().all(|c| c.is_finite())
+    {
         return None;
     }
     Some(Point3::from(rect.r1.transpose() * rectified.coords))

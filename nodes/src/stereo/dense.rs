@@ -1,0 +1,282 @@
+//! Semi-global matching from a grey pair to a disparity map: costs, path
+//! aggregation, selection, speckle removal.
+
+use super::cost::{CostVolume, bt_costs, census_costs, check_census_window};
+use super::filter::filter_speckles;
+use super::pair::{DisparityRange, GreyImage, check_pair};
+use super::refine::{RefineParams, refine_disparity};
+use super::select::{SelectParams, select};
+use super::sgm::{SgmParams, aggregate};
+
+/// The pixel matching cost semi-global matching aggregates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MatchCost {
+    /// Census transform over a `width x height` window (odd sides, area <= 65),
+    /// Hamming distance; costs 0 ..= area - 1.
+    Census {
+        /// Window width, px.
+        width: usize,
+        /// Window height, px.
+        height: usize,
+    },
+    /// Birchfield-Tomasi grey-level difference averaged over a square window;
+    /// costs 0 ..= 255.
+    BirchfieldTomasi {
+        /// Window side, px (odd).
+        window: usize,
+    },
+}
+
+/// Everything semi-global matching needs besides the images and the range.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SgmConfig {
+    /// Matching cost.
+    pub cost: MatchCost,
+    /// Penalties and paths.
+    pub sgm: SgmParams,
+    /// Winner selection.
+    pub select: SelectParams,
+    /// Largest speckle removed, px (0 = none).
+    pub speckle_size_px: usize,
+    /// Largest disparity step inside one speckle region, px.
+    pub speckle_range_px: f32,
+    /// Refuse to run when the cost volumes would need more memory than this, MB.
+    pub max_memory_mb: usize,
+    /// Sub-pixel refinement on the intensities after selection (`None` keeps
+    /// the cost parabola's sub-pixel values).
+    pub refine: Option<RefineParams>,
+}
+
+/// Bytes per cost cell: the 8-bit cost and two 16-bit pass sums.
+const BYTES_PER_CELL: usize = 5;
+
+/// Disparities (px, NaN = invalid) of the left image of a rectified pair.
+pub fn sgm_disparity(
+    left: &GreyImage,
+    right: &GreyImage,
+    range: DisparityRange,
+    config: &SgmConfig,
+) -> Result<Vec<f32>, String> {
+    check_pair(left, right)?;
+    config.sgm.check()?;
+    let (w, h) = (left.width, left.height);
+    let cells = w * h * range.count;
+    let mb = cells * BYTES_PER_CELL / (1 << 20);
+    if mb > config.max_memory_mb {
+        return Err(format!(
+            "{w} x {h} px with {} disparities needs about {mb} MB of cost volumes, more than \
+             max_memory_mb = {}: narrow the disparity range or raise the limit",
+            range.count, config.max_memory_mb
+        ));
+    }
+    let t0 = std::time::Instant::now();
+    let volume: CostVolume = match config.cost {
+        MatchCost::Census { width, height } => {
+            check_census_window(width, height)?;
+            census_costs(left, right, range, width, height)
+        }
+        MatchCost::BirchfieldTomasi { window } => {
+            if window % 2 == 0 || window > 31 {
+                return Err(format!(
+                    "Birchfield-Tomasi window {window} px: must be odd and at most 31"
+                ));
+            }
+            bt_costs(left, right, range, window)
+        }
+    };
+    let t1 = std::time::Instant::now();
+    let aggregated = aggregate(&volume, &config.sgm, Some(left));
+    let t2 = std::time::Instant::now();
+    drop(volume);
+    let mut disparity = select(
+        w,
+        h,
+        range,
+        |y, out: &mut Vec<u16>| aggregated.total_row(y, out),
+        &config.select,
+    );
+    let t3 = std::time::Instant::now();
+    filter_speckles(
+        &mut disparity,
+        w,
+        h,
+        config.speckle_size_px,
+        config.speckle_range_px,
+    );
+    let t4 = std::time::Instant::now();
+    if let Some(refine) = &config.refine {
+        refine_disparity(left, right, &mut disparity, refine);
+    }
+    let ms = |a: std::time::Instant, b: std::time::Instant| (b - a).as_secs_f64() * 1e3;
+    tracing::debug!(
+        "sgm {w} x {h} x {}: costs {:.1} ms, aggregation {:.1} ms, selection {:.1} ms, speckles {:.1} ms, refinement {:.1} ms",
+        range.count,
+        ms(t0, t1),
+        ms(t1, t2),
+        ms(t2, t3),
+        ms(t3, t4),
+        t4.elapsed().as_secs_f64() * 1e3
+    );
+    Ok(disparity)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::sgm::Paths;
+    use super::*;
+
+    /// A random-dot pair: the left image is the right one shifted by a known
+    /// disparity per region (a background plane and a raised square).
+    fn random_dot_pair(w: usize, h: usize) -> (GreyImage, GreyImage, Vec<f32>) {
+        let mut s = 12345u64;
+        let mut next = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 56) as u8
+        };
+        // Dots of 1 px on a wide canvas.
+        let cw = w + 64;
+        let canvas: Vec<u8> = (0..cw * h).map(|_| next()).collect();
+        let truth: Vec<f32> = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                if (w / 3..2 * w / 3).contains(&x) && (h / 3..2 * h / 3).contains(&y) {
+                    20.0
+                } else {
+                    8.0
+                }
+            })
+            .collect();
+        // right(x) = canvas(x); left(x) = right(x - d).
+        let right = GreyImage {
+            width: w,
+            height: h,
+            data: (0..w * h)
+                .map(|i| canvas[(i / w) * cw + i % w + 32])
+                .collect(),
+        };
+        let left = GreyImage {
+            width: w,
+            height: h,
+            data: (0..w * h)
+                .map(|i| {
+                    let (x, y) = (i % w, i / w);
+                    canvas[y * cw + x + 32 - truth[i] as usize]
+                })
+                .collect(),
+        };
+        (left, right, truth)
+    }
+
+    fn config(cost: MatchCost, paths: Paths, subpixel: bool) -> SgmConfig {
+        SgmConfig {
+            cost,
+            sgm: SgmParams {
+                p1: 8,
+                p2: 100,
+                paths,
+                p2_gamma: 0.0,
+            },
+            select: SelectParams {
+                uniqueness_pct: 5.0,
+                lr_max_diff_px: Some(1.0),
+                subpixel,
+            },
+            speckle_size_px: 20,
+            speckle_range_px: 1.0,
+            max_memory_mb: 1024,
+            refine: None,
+        }
+    }
+
+    #[test]
+    fn exact_on_a_random_dot_pair() {
+        let (w, h) = (96, 64);
+        let (left, right, truth) = random_dot_pair(w, h);
+        let range = DisparityRange::new(0, 31, w).unwrap();
+        for (cost, paths) in [
+            (
+                MatchCost::Census {
+                    width: 9,
+                    height: 7,
+                },
+                Paths::Eight,
+            ),
+            (
+                MatchCost::Census {
+                    width: 5,
+                    height: 5,
+                },
+                Paths::Four,
+            ),
+            (MatchCost::BirchfieldTomasi { window: 3 }, Paths::Eight),
+        ] {
+            let d = sgm_disparity(&left, &right, range, &config(cost, paths, false)).unwrap();
+            // Every pixel that the right image also sees, away from the
+            // occluded band beside the square, has the exact (integer) disparity.
+            let (mut checked, mut exact) = (0, 0);
+            for y in 0..h {
+                for x in 24..w {
+                    let near_edge = (w / 3).abs_diff(x) < 14 || (2 * w / 3).abs_diff(x) < 4;
+                    if near_edge || (h / 3).abs_diff(y) < 4 || (2 * h / 3).abs_diff(y) < 4 {
+                        continue;
+                    }
+                    checked += 1;
+                    if (d[y * w + x] - truth[y * w + x]).abs() < 0.25 {
+                        exact += 1;
+                    }
+                }
+            }
+            assert!(checked > 2000);
+            assert_eq!(exact, checked, "{cost:?} {paths:?}");
+        }
+    }
+
+    #[test]
+    fn refuses_bad_input() {
+        let (left, right, _) = random_dot_pair(40, 20);
+        let range = DisparityRange::new(0, 15, 40).unwrap();
+        let small = GreyImage {
+            width: 30,
+            height: 20,
+            data: vec![0; 600],
+        };
+        let cfg = config(
+            MatchCost::Census {
+                width: 9,
+                height: 7,
+            },
+            Paths::Eight,
+            true,
+        );
+        assert!(
+            sgm_disparity(&left, &small, range, &cfg)
+                .unwrap_err()
+                .contains("differ in size")
+        );
+        let bad_window = config(
+            MatchCost::Census {
+                width: 8,
+                height: 9,
+            },
+            Paths::Eight,
+            true,
+        );
+        assert!(
+            sgm_disparity(&left, &right, range, &bad_window)
+                .unwrap_err()
+                .contains("census window")
+        );
+        let mut tiny_memory = cfg;
+        tiny_memory.max_memory_mb = 0;
+        let grey = GreyImage {
+            width: 400,
+            height: 400,
+            data: vec![0; 160_000],
+        };
+        let wide = DisparityRange::new(0, 300, 400).unwrap();
+        let e = sgm_disparity(&grey, &grey, wide, &tiny_memory).unwrap_err();
+        assert!(e.contains("max_memory_mb"), "{e}");
+    }
+}

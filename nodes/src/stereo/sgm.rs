@@ -1,0 +1,369 @@
+//! Semi-global matching (Hirschmüller, PAMI 2008): matching costs aggregated
+//! along 4 or 8 straight paths with a small penalty P1 for disparity steps of
+//! one pixel and a large one P2 for jumps, then selected by
+//! [`super::select`].
+//!
+//! Our own implementation (no maintained Rust crate does SGM; `sgm-rs` is
+//! from 2021 on an old image crate, ../shared/CRATES.md). The paths run in two
+//! passes that run in parallel: top-down with left-to-right (and the two
+//! downward diagonals with 8 paths), and bottom-up with right-to-left (and the
+//! upward diagonals). Each pass keeps only one row of path costs and writes
+//! its sum of paths as 16-bit costs; the two sums add up to the total.
+
+use super::cost::CostVolume;
+use super::pair::{DisparityRange, GreyImage};
+use super::simd::Isa;
+
+/// Lane value that never wins a minimum (and cannot overflow with P1 added).
+const SENTINEL: u16 = 16383;
+
+/// Which paths to aggregate along.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Paths {
+    /// Horizontal and vertical, both ways.
+    Four,
+    /// Horizontal, vertical and both diagonals, both ways.
+    Eight,
+}
+
+/// Penalties and paths of semi-global matching.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SgmParams {
+    /// Penalty for a disparity change of one pixel between neighbours, in cost units.
+    pub p1: u16,
+    /// Penalty for a larger change, in cost units (> p1).
+    pub p2: u16,
+    /// Paths aggregated.
+    pub paths: Paths,
+    /// Where the guide image has an edge of |dI| grey levels between two
+    /// neighbours, P2 drops to `max(P1 + 1, P2 * gamma / (gamma + |dI|))`, so
+    /// disparity jumps follow intensity edges (Hirschmüller); 0 = constant P2.
+    pub p2_gamma: f32,
+}
+
+impl SgmParams {
+    /// Checks the penalties: 0 < p1 < p2 <= 4000 (so 16-bit sums cannot overflow).
+    pub fn check(&self) -> Result<(), String> {
+        if self.p1 == 0 || self.p1 >= self.p2 || self.p2 > 4000 {
+            return Err(format!(
+                "SGM penalties P1 = {} and P2 = {}: need 0 < P1 < P2 <= 4000",
+                self.p1, self.p2
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Aggregated costs `[y][x][k]` as the two passes' sums (their sum is the total).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Aggregated {
+    /// Width, px.
+    pub width: usize,
+    /// Height, px.
+    pub height: usize,
+    /// Disparities.
+    pub range: DisparityRange,
+    /// Sum of the top-down pass's paths.
+    pub down: Vec<u16>,
+    /// Sum of the bottom-up pass's paths.
+    pub up: Vec<u16>,
+}
+
+impl Aggregated {
+    /// The total aggregated costs of row `y`, `[x][k]`, into `out`.
+    pub fn total_row(&self, y: usize, out: &mut Vec<u16>) {
+        let len = self.width * self.range.count;
+        let span = y * len..(y + 1) * len;
+        out.clear();
+        out.extend(
+            self.down[span.clone()]
+                .iter()
+                .zip(&self.up[span])
+                .map(|(a, b)| a + b),
+        );
+    }
+}
+
+/// Aggregates `volume` along the paths of `params` (checked by
+/// [`SgmParams::check`]); `guide` (the left image) adapts P2 to its edges.
+pub fn aggregate(volume: &CostVolume, params: &SgmParams, guide: Option<&GreyImage>) -> Aggregated {
+    let isa = Isa::detect();
+    // P2 by grey-level step between neighbours.
+    let p2_of: Vec<u16> = (0..256)
+        .map(|step| match guide {
+            Some(_) if params.p2_gamma > 0.0 => {
+                let g = params.p2_gamma;
+                ((params.p2 as f32 * g / (g + step as f32)).round() as u16).max(params.p1 + 1)
+            }
+            _ => params.p2,
+        })
+        .collect();
+    let guide = guide.filter(|g| (g.width, g.height) == (volume.width, volume.height));
+    let (down, up) = rayon::join(
+        || pass(volume, params, &p2_of, guide, false, isa),
+        || pass(volume, params, &p2_of, guide, true, isa),
+    );
+    Aggregated {
+        width: volume.width,
+        height: volume.height,
+        range: volume.range,
+        down,
+        up,
+    }
+}
+
+/// One pass over the image: rows in order (or reversed), pixels in order (or
+/// reversed). In the pass's own frame, pixel i of row j continues the paths from
+/// (i - 1, j) and, from the row before, (i, j - 1), (i - 1, j - 1), (i + 1, j - 1).
+fn pass(
+    volume: &CostVolume,
+    params: &SgmParams,
+    p2_of: &[u16],
+    guide: Option<&GreyImage>,
+    reverse: bool,
+    isa: Isa,
+) -> Vec<u16> {
+    let (w, h, n) = (volume.width, volume.height, volume.range.count);
+    let vertical_paths = match params.paths {
+        Paths::Four => 1,
+        Paths::Eight => 3,
+    };
+    let stride = n + 2;
+    // Path costs of the previous and current rows, per vertical path, with a
+    // virtual pixel on each side (index 0 and w + 1) that starts paths: its
+    // costs are 0, so a path's first pixel gets just its matching cost.
+    let fresh = || {
+        let mut b = vec![0u16; vertical_paths * (w + 2) * stride];
+        for px in b.chunks_exact_mut(stride) {
+            px[0] = SENTINEL;
+            px[n + 1] = SENTINEL;
+        }
+        b
+    };
+    let (mut prev, mut cur) = (fresh(), fresh());
+    let (mut prev_min, mut cur_min) = (
+        vec![0u16; vertical_paths * (w + 2)],
+        vec![0u16; vertical_paths * (w + 2)],
+    );
+    let mut h_prev = vec![0u16; stride];
+    let mut h_cur = vec![0u16; stride];
+    for b in [&mut h_prev, &mut h_cur] {
+        b[0] = SENTINEL;
+        b[n + 1] = SENTINEL;
+    }
+    let mut sums = vec![0u16; w * h * n];
+    let p1 = params.p1;
+    // P2 from the pixel at pass position (i, j) to its neighbour at (i + di, j + dj).
+    let actual = |i: usize, j: usize| {
+        if reverse {
+            (w - 1 - i, h - 1 - j)
+        } else {
+            (i, j)
+        }
+    };
+    let p2_towards = |i: usize, j: usize, di: isize, dj: isize| -> u16 {
+        let Some(g) = guide else { return params.p2 };
+        let (ni, nj) = (i as isize + di, j as isize + dj);
+        if ni < 0 || nj < 0 || ni >= w as isize || nj >= h as isize {
+            return params.p2;
+        }
+        let (x, y) = actual(i, j);
+        let (nx, ny) = actual(ni as usize, nj as usize);
+        p2_of[g.at(x, y).abs_diff(g.at(nx, ny)) as usize]
+    };
+    for j in 0..h {
+        let y = if reverse { h - 1 - j } else { j };
+        let cost_row = &volume.data[y * w * n..(y + 1) * w * n];
+        let sum_row = &mut sums[y * w * n..(y + 1) * w * n];
+        h_prev[1..=n].fill(0);
+        let mut h_min = 0u16;
+        let plane = (w + 2) * stride;
+        for i in 0..w {
+            let x = if reverse { w - 1 - i } else { i };
+            let cost = &cost_row[x * n..(x + 1) * n];
+            let sum = &mut sum_row[x * n..(x + 1) * n];
+            let at = |path: usize, px: usize| path * plane + px * stride;
+            if vertical_paths == 3 {
+                let (c0, rest) = cur.split_at_mut(plane);
+                let (c1, c2) = rest.split_at_mut(plane);
+                let o = (i + 1) * stride;
+                let mins = isa.sgm_pixel4(
+                    cost,
+                    [
+                        &h_prev,
+                        &prev[at(0, i + 1)..at(0, i + 1) + stride],
+                        &prev[at(1, i)..at(1, i) + stride],
+                        &prev[at(2, i + 2)..at(2, i + 2) + stride],
+                    ],
+                    [
+                        h_min,
+                        prev_min[i + 1],
+                        prev_min[(w + 2) + i],
+                        prev_min[2 * (w + 2) + i + 2],
+                    ],
+                    p1,
+                    [
+                        p2_towards(i, j, -1, 0),
+                        p2_towards(i, j, 0, -1),
+                        p2_towards(i, j, -1, -1),
+                        p2_towards(i, j, 1, -1),
+                    ],
+                    [
+                        &mut h_cur,
+                        &mut c0[o..o + stride],
+                        &mut c1[o..o + stride],
+                        &mut c2[o..o + stride],
+                    ],
+                    sum,
+                );
+                h_min = mins[0];
+                cur_min[i + 1] = mins[1];
+                cur_min[(w + 2) + i + 1] = mins[2];
+                cur_min[2 * (w + 2) + i + 1] = mins[3];
+            } else {
+                let o = (i + 1) * stride;
+                let mins = isa.sgm_pixel2(
+                    cost,
+                    [&h_prev, &prev[o..o + stride]],
+                    [h_min, prev_min[i + 1]],
+                    p1,
+                    [p2_towards(i, j, -1, 0), p2_towards(i, j, 0, -1)],
+                    [&mut h_cur, &mut cur[o..o + stride]],
+                    sum,
+                );
+                h_min = mins[0];
+                cur_min[i + 1] = mins[1];
+            }
+            std::mem::swap(&mut h_prev, &mut h_cur);
+        }
+        std::mem::swap(&mut prev, &mut cur);
+        std::mem::swap(&mut prev_min, &mut cur_min);
+    }
+    sums
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Direct evaluation of one path's recurrence, for comparison.
+    fn path_costs(costs: &[Vec<u16>], p1: u16, p2: u16) -> Vec<Vec<u16>> {
+        let mut out: Vec<Vec<u16>> = Vec::new();
+        for c in costs {
+            let l = match out.last() {
+                None => c.clone(),
+                Some(prev) => {
+                    let m = *prev.iter().min().unwrap();
+                    (0..c.len())
+                        .map(|k| {
+                            let mut best = prev[k];
+                            if k > 0 {
+                                best = best.min(prev[k - 1] + p1);
+                            }
+                            if k + 1 < c.len() {
+                                best = best.min(prev[k + 1] + p1);
+                            }
+                            c[k] + best.min(m + p2) - m
+                        })
+                        .collect()
+                }
+            };
+            out.push(l);
+        }
+        out
+    }
+
+    #[test]
+    fn four_paths_equal_the_recurrence_by_hand() {
+        let (w, h, n) = (7usize, 5usize, 6usize);
+        let data: Vec<u8> = (0..w * h * n)
+            .map(|i| ((i * 37 + i / 5) % 23) as u8)
+            .collect();
+        let volume = CostVolume {
+            width: w,
+            height: h,
+            range: DisparityRange::new(0, n as i32 - 1, w).unwrap(),
+            max_cost: 23,
+            data: data.clone(),
+        };
+        let params = SgmParams {
+            p1: 3,
+            p2: 20,
+            paths: Paths::Four,
+            p2_gamma: 0.0,
+        };
+        let agg = aggregate(&volume, &params, None);
+        let c = |x: usize, y: usize| -> Vec<u16> {
+            data[(y * w + x) * n..(y * w + x + 1) * n]
+                .iter()
+                .map(|&v| v as u16)
+                .collect()
+        };
+        for y in 0..h {
+            for x in 0..w {
+                let mut total = vec![0u16; n];
+                let row: Vec<_> = (0..w).map(|xx| c(xx, y)).collect();
+                let col: Vec<_> = (0..h).map(|yy| c(x, yy)).collect();
+                let rev = |v: &Vec<Vec<u16>>| v.iter().rev().cloned().collect::<Vec<_>>();
+                let lr = path_costs(&row, 3, 20)[x].clone();
+                let rl = path_costs(&rev(&row), 3, 20)[w - 1 - x].clone();
+                let tb = path_costs(&col, 3, 20)[y].clone();
+                let bt = path_costs(&rev(&col), 3, 20)[h - 1 - y].clone();
+                for k in 0..n {
+                    total[k] = lr[k] + rl[k] + tb[k] + bt[k];
+                }
+                let mut got = Vec::new();
+                agg.total_row(y, &mut got);
+                assert_eq!(&got[x * n..(x + 1) * n], &total[..], "pixel ({x}, {y})");
+            }
+        }
+    }
+
+    #[test]
+    fn eight_paths_include_the_diagonals() {
+        let (w, h, n) = (6usize, 6usize, 4usize);
+        let data: Vec<u8> = (0..w * h * n).map(|i| ((i * 13 + 7) % 17) as u8).collect();
+        let volume = CostVolume {
+            width: w,
+            height: h,
+            range: DisparityRange::new(0, n as i32 - 1, w).unwrap(),
+            max_cost: 17,
+            data: data.clone(),
+        };
+        let agg = aggregate(
+            &volume,
+            &SgmParams {
+                p1: 2,
+                p2: 9,
+                paths: Paths::Eight,
+                p2_gamma: 0.0,
+            },
+            None,
+        );
+        let c = |x: usize, y: usize| -> Vec<u16> {
+            data[(y * w + x) * n..(y * w + x + 1) * n]
+                .iter()
+                .map(|&v| v as u16)
+                .collect()
+        };
+        // Pixel (3, 2): its down-right diagonal path starts at (1, 0).
+        let (x, y) = (3, 2);
+        let diag: Vec<_> = (0..=2).map(|t| c(1 + t, t)).collect();
+        let expect_dr = path_costs(&diag, 2, 9)[2].clone();
+        // The up pass's sum at (x, y) minus its straight paths leaves its diagonals;
+        // check the down pass instead by recomputing its four paths.
+        let row: Vec<_> = (0..=x).map(|xx| c(xx, y)).collect();
+        let col: Vec<_> = (0..=y).map(|yy| c(x, yy)).collect();
+        let anti: Vec<_> = (0..=2).map(|t| c(5 - t, t)).collect();
+        let lr = path_costs(&row, 2, 9)[x].clone();
+        let tb = path_costs(&col, 2, 9)[y].clone();
+        let dl = path_costs(&anti, 2, 9)[2].clone();
+        for k in 0..n {
+            assert_eq!(
+                agg.down[(y * w + x) * n + k],
+                lr[k] + tb[k] + expect_dr[k] + dl[k],
+                "k {k}"
+            );
+        }
+    }
+}

@@ -279,43 +279,102 @@ mod tests {
         )
     }
 
+    /// View 1 of the test phantom rendered by both true cameras (grey, no noise,
+    /// no blur, one sample per pixel).
+    struct RenderedPair {
+        rig: Rig,
+        shape: PhantomShape,
+        to_world: Isometry3<f64>,
+        left_to_world: Isometry3<f64>,
+        left: Vec<u8>,
+        right: Vec<u8>,
+    }
+
+    impl RenderedPair {
+        fn new() -> Self {
+            let rig = Rig::paper_rig();
+            let (shape, to_world) = phantom();
+            let left_to_world = view_pose(&rig, &to_world, 1);
+            let render = PhantomScene {
+                shape: shape.clone(),
+                phantom_to_world: to_world,
+                light_dir: Vector3::new(0.45, -0.35, 0.82).normalize(),
+                seed: 11,
+            };
+            let params = RenderParams {
+                supersample: 1,
+                blur_sigma_px: 0.0,
+                noise_sigma: 0.0,
+                vignetting: false,
+                seed: 1,
+            };
+            let grey = |rgb: Vec<u8>| -> Vec<u8> { rgb.chunks(3).map(|c| c[1]).collect() };
+            let left = grey(Renderer::new(&rig.left).render(&left_to_world, &render, &params));
+            let right_to_world = rig.right_pose(&left_to_world);
+            let right = grey(Renderer::new(&rig.right).render(&right_to_world, &render, &params));
+            RenderedPair {
+                rig,
+                shape,
+                to_world,
+                left_to_world,
+                left,
+                right,
+            }
+        }
+
+        fn scene(&self) -> ViewScene<'_> {
+            ViewScene {
+                shape: &self.shape,
+                phantom_to_world: self.to_world,
+                left: &self.rig.left,
+                right: &self.rig.right,
+                left_to_right: self.rig.left_to_right,
+                left_to_world: self.left_to_world,
+            }
+        }
+
+        /// Both images rectified through `left`, `right` and `rect`.
+        fn rectified(
+            &self,
+            left: &CameraModel,
+            right: &CameraModel,
+            rect: &StereoRectification,
+        ) -> (Vec<u8>, Vec<u8>) {
+            (
+                remap(&self.left, 1, left, &rect.r1, &rect.p1, rect.size),
+                remap(&self.right, 1, right, &rect.r2, &rect.p2, rect.size),
+            )
+        }
+    }
+
+    /// Mean |L(u, v) - R(u - d - shift, v)| over the skin mask of `truth`.
+    fn mean_abs_diff(truth: &TrueDisparity, left: &[u8], right: &[u8], shift: f64) -> f64 {
+        let (w, h) = (truth.width, truth.height);
+        let (mut sum, mut n) = (0.0, 0usize);
+        for v in 0..h {
+            for u in 0..w {
+                let i = v * w + u;
+                if truth.mask[i] == 0 {
+                    continue;
+                }
+                let x = u as f64 - truth.disparity_px[i] as f64 - shift;
+                if let Some(r) = sample(right, w, h, x, v as f64) {
+                    sum += (r - left[i] as f64).abs();
+                    n += 1;
+                }
+            }
+        }
+        sum / n as f64
+    }
+
     #[test]
     fn rectified_renders_agree_at_the_true_disparity() {
-        let rig = Rig::paper_rig();
-        let (shape, to_world) = phantom();
-        let left_to_world = view_pose(&rig, &to_world, 1);
-        let scene = ViewScene {
-            shape: &shape,
-            phantom_to_world: to_world,
-            left: &rig.left,
-            right: &rig.right,
-            left_to_right: rig.left_to_right,
-            left_to_world,
-        };
-        let render = PhantomScene {
-            shape: shape.clone(),
-            phantom_to_world: to_world,
-            light_dir: Vector3::new(0.45, -0.35, 0.82).normalize(),
-            seed: 11,
-        };
-        let params = RenderParams {
-            supersample: 1,
-            blur_sigma_px: 0.0,
-            noise_sigma: 0.0,
-            vignetting: false,
-            seed: 1,
-        };
-        let grey = |rgb: Vec<u8>| -> Vec<u8> { rgb.chunks(3).map(|c| c[1]).collect() };
-        let left_img = grey(Renderer::new(&rig.left).render(&left_to_world, &render, &params));
-        let right_img = grey(Renderer::new(&rig.right).render(
-            &rig.right_pose(&left_to_world),
-            &render,
-            &params,
-        ));
+        let pair = RenderedPair::new();
+        let (rig, scene) = (&pair.rig, pair.scene());
+        let left_to_world = pair.left_to_world;
         let rect = rectify(&rig.left, &rig.right, &rig.left_to_right, 0.0);
         let (w, h) = rect.size;
-        let left_rect = remap(&left_img, 1, &rig.left, &rect.r1, &rect.p1, rect.size);
-        let right_rect = remap(&right_img, 1, &rig.right, &rect.r2, &rect.p2, rect.size);
+        let (left_rect, right_rect) = pair.rectified(&rig.left, &rig.right, &rect);
         let truth = true_disparity(&scene, &rig.left, &rig.right, &rect).unwrap();
         assert!(truth.skin > 20_000, "skin pixels {}", truth.skin);
         assert!(
@@ -331,25 +390,8 @@ mod tests {
             truth.min_px,
             truth.max_px
         );
-
-        let mean_abs_diff = |shift: f64| {
-            let (mut sum, mut n) = (0.0, 0usize);
-            for v in 0..h {
-                for u in 0..w {
-                    let i = v * w + u;
-                    if truth.mask[i] == 0 {
-                        continue;
-                    }
-                    let x = u as f64 - truth.disparity_px[i] as f64 - shift;
-                    if let Some(r) = sample(&right_rect, w, h, x, v as f64) {
-                        sum += (r - left_rect[i] as f64).abs();
-                        n += 1;
-                    }
-                }
-            }
-            sum / n as f64
-        };
-        let (at_truth, off_by_one) = (mean_abs_diff(0.0), mean_abs_diff(1.0));
+        let at_truth = mean_abs_diff(&truth, &left_rect, &right_rect, 0.0);
+        let off_by_one = mean_abs_diff(&truth, &left_rect, &right_rect, 1.0);
         assert!(
             at_truth * 2.0 < off_by_one,
             "mean |L - R| {at_truth} at the true disparity, {off_by_one} one px off"
@@ -379,6 +421,45 @@ mod tests {
         for label in [SceneLabel::Skin, SceneLabel::MarkerFace, SceneLabel::Table] {
             assert!(truth.labels.contains(&(label as u8)), "{label:?}");
         }
+    }
+
+    #[test]
+    fn the_truth_includes_the_calibration_error() {
+        // The right camera calibrated with its principal point 2 px off: the
+        // images are rectified with that error, and the truth must follow it.
+        let pair = RenderedPair::new();
+        let (rig, scene) = (&pair.rig, pair.scene());
+        let est_right = CameraModel {
+            cx: rig.right.cx + 2.0,
+            ..rig.right.clone()
+        };
+        let rect = rectify(&rig.left, &est_right, &rig.left_to_right, 0.0);
+        let (left_rect, right_rect) = pair.rectified(&rig.left, &est_right, &rect);
+        let truth = true_disparity(&scene, &rig.left, &est_right, &rect).unwrap();
+        let naive = true_disparity(&scene, &rig.left, &rig.right, &rect).unwrap();
+        // A horizontal error of the right camera moves x_r by about 2 px times
+        // the rectified-to-original focal ratio (within 10 %: the ratio grows
+        // off-axis and with the verging rotation); rows barely move.
+        let scale = rect.p1[(0, 0)] / rig.right.fx;
+        let (mut shift, mut n) = (0.0, 0);
+        for (a, b) in truth.disparity_px.iter().zip(&naive.disparity_px) {
+            if a.is_finite() && b.is_finite() {
+                shift += (a - b) as f64;
+                n += 1;
+            }
+        }
+        let shift = shift / n as f64;
+        assert!(
+            (shift - 2.0 * scale).abs() < 0.1 * scale,
+            "{shift} vs {scale}"
+        );
+        assert!(truth.row_error_px < 0.1, "{}", truth.row_error_px);
+        let with_error = mean_abs_diff(&truth, &left_rect, &right_rect, 0.0);
+        let without = mean_abs_diff(&naive, &left_rect, &right_rect, 0.0);
+        assert!(
+            with_error * 2.0 < without,
+            "mean |L - R| {with_error} with the calibration error, {without} without"
+        );
     }
 
     #[test]

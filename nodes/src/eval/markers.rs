@@ -1,5 +1,9 @@
 //! Found markers against true ones, without assuming order or equal counts.
 
+use super::frame_to_world;
+use crate::phantom::{GroundTruth, MarkerTruth};
+use nalgebra::Point3;
+
 /// How found markers compare to the truth.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MarkerComparison {
@@ -61,6 +65,50 @@ pub fn compare_markers(
     }
 }
 
+/// The true marker centres (mm) that markers found in `frame` are compared
+/// with. `reference` `mri_gel`: gel cores, for markers in `mri_lps`;
+/// `world_gel` / `world_face`: gel cores / coloured face centres, for markers in
+/// `world` (every marker) or `camera_left` (the left camera of view `view`, and
+/// only the markers visible in both of its images: those a stereo rig can
+/// find). Any other pairing is an error naming the frame.
+pub fn true_marker_centres(
+    truth: &GroundTruth,
+    reference: &str,
+    frame: &str,
+    view: usize,
+) -> Result<Vec<[f64; 3]>, String> {
+    let centre = |m: &MarkerTruth| match reference {
+        "world_face" => m.face_center_world_mm,
+        _ => m.center_world_mm,
+    };
+    match (reference, frame) {
+        ("mri_gel", "mri_lps") => Ok(truth.markers.iter().map(|m| m.center_mri_mm).collect()),
+        ("world_gel" | "world_face", "world") => Ok(truth.markers.iter().map(centre).collect()),
+        ("world_gel" | "world_face", "camera_left") => {
+            let world_to_camera = frame_to_world(truth, frame, view)?.inverse();
+            let v = &truth.views[view];
+            Ok(truth
+                .markers
+                .iter()
+                .filter(|m| {
+                    v.markers_visible_left.contains(&m.id)
+                        && v.markers_visible_right.contains(&m.id)
+                })
+                .map(|m| (world_to_camera * Point3::from(centre(m))).into())
+                .collect())
+        }
+        ("mri_gel", _) => Err(format!(
+            "frame `{frame}`, but reference `mri_gel` takes markers in mri_lps"
+        )),
+        ("world_gel" | "world_face", _) => Err(format!(
+            "frame `{frame}`, but reference `{reference}` takes markers in world or camera_left"
+        )),
+        _ => Err(format!(
+            "unknown reference `{reference}` (mri_gel, world_gel or world_face)"
+        )),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -74,5 +122,41 @@ mod tests {
         assert!((c.mean_error_mm() - 0.15).abs() < 1e-12);
         assert!((c.max_error_mm() - 0.2).abs() < 1e-12);
         assert!(compare_markers(&[], &truth, 5.0).mean_error_mm().is_nan());
+    }
+
+    #[test]
+    fn camera_centres_are_the_visible_markers_in_the_view_camera() {
+        let truth = crate::eval::frames::test_truth();
+        let pose = crate::camera::isometry_from_matrix(&truth.views[0].left_camera_to_world);
+        let faces = true_marker_centres(&truth, "world_face", "camera_left", 0).unwrap();
+        // Markers 1, 2, 3 are visible in both images of the test view.
+        assert_eq!(faces.len(), 3);
+        for (c, m) in faces.iter().zip(&truth.markers[1..4]) {
+            let back = pose * Point3::from(*c);
+            assert!((back - Point3::from(m.face_center_world_mm)).norm() < 1e-9);
+        }
+        // The gel core lies below the face, along the marker's axis.
+        let gels = true_marker_centres(&truth, "world_gel", "camera_left", 0).unwrap();
+        let m = &truth.markers[1];
+        let depth = (Point3::from(m.face_center_world_mm) - Point3::from(m.center_world_mm)).norm();
+        assert!(((Point3::from(faces[0]) - Point3::from(gels[0])).norm() - depth).abs() < 1e-9);
+        assert!(depth > 0.5);
+        assert_eq!(
+            true_marker_centres(&truth, "world_gel", "world", 0)
+                .unwrap()
+                .len(),
+            truth.markers.len()
+        );
+    }
+
+    #[test]
+    fn mismatched_frames_and_views_are_errors() {
+        let truth = crate::eval::frames::test_truth();
+        let err = true_marker_centres(&truth, "mri_gel", "camera_left", 0).unwrap_err();
+        assert!(err.contains("takes markers in mri_lps"), "{err}");
+        let err = true_marker_centres(&truth, "world_face", "mri_lps", 0).unwrap_err();
+        assert!(err.contains("world or camera_left"), "{err}");
+        let err = true_marker_centres(&truth, "world_face", "camera_left", 2).unwrap_err();
+        assert!(err.contains("view 2 does not exist"), "{err}");
     }
 }

@@ -2,12 +2,14 @@
 //! and surface distances.
 
 mod calibration;
+mod frames;
 mod markers;
 mod ops;
 mod surface;
 
 pub use calibration::{CalibrationErrors, compare_calibration};
-pub use markers::{MarkerComparison, compare_markers};
+pub use frames::{EVAL_FRAMES, frame_to_world};
+pub use markers::{MarkerComparison, compare_markers, true_marker_centres};
 pub use surface::{SurfaceDistances, skin_distances};
 
 use fusegraph_engine::Registry;
@@ -18,6 +20,7 @@ use std::sync::Arc;
 pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.register(Arc::new(ops::EvalMarkersOp::new()))?;
     registry.register(Arc::new(ops::EvalSkinOp::new()))?;
+    registry.register(Arc::new(ops::EvalSurfaceOp::new()))?;
     registry.register(Arc::new(ops::EvalCalibrationOp::new()))?;
     Ok(())
 }

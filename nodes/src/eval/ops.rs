@@ -1,9 +1,12 @@
-//! Node adapters: `eval.markers` and `eval.skin_distance`.
+//! Node adapters: `eval.markers`, `eval.skin_distance`, `eval.surface` and
+//! `eval.calibration`.
 
-use super::{compare_calibration, compare_markers, skin_distances};
+use super::{
+    compare_calibration, compare_markers, frame_to_world, skin_distances, true_marker_centres,
+};
 use crate::camera::isometry_from_matrix;
 use crate::phantom::truth_input;
-use fusegraph_engine::value::{Markers, Mesh, Rectification, StereoRig};
+use fusegraph_engine::value::{Markers, Mesh, PointCloud, Rectification, StereoRig};
 use fusegraph_engine::{
     Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType,
 };
@@ -16,15 +19,19 @@ impl EvalMarkersOp {
         EvalMarkersOp(
             OpSpec::new(
                 "eval.markers",
-                1,
+                2,
                 "Found marker centres against the phantom's true ones (no assumed order)",
             )
-            .input("markers", &[ValueType::Markers], "Found centres")
+            .input(
+                "markers",
+                &[ValueType::Markers],
+                "Found centres, mm (frame mri_lps, world or camera_left)",
+            )
             .input("truth", &[ValueType::Path], "ground_truth.json")
             .param(ParamSpec::choice(
                 "reference",
                 &["mri_gel", "world_gel", "world_face"],
-                "Which true centres: gel cores in MRI LPS, or gel cores / coloured faces in world",
+                "Which true centres: gel cores in MRI LPS (markers in mri_lps), or gel cores / coloured faces (markers in world, or in camera_left: then only those visible in both images of `view`)",
             ))
             .param(
                 ParamSpec::float(
@@ -32,6 +39,15 @@ impl EvalMarkersOp {
                     5.0,
                     "mm",
                     "Farther than this is no match",
+                )
+                .at_least(0.0),
+            )
+            .param(
+                ParamSpec::int(
+                    "view",
+                    0,
+                    "",
+                    "Which view's left camera, for markers in camera_left",
                 )
                 .at_least(0.0),
             )
@@ -49,36 +65,16 @@ impl Op for EvalMarkersOp {
         let markers = inputs.get::<Markers>("markers")?;
         let truth = truth_input(inputs)?;
         let reference = params.string("reference")?;
-        let (expected_frame, centres): (&str, Vec<[f64; 3]>) = match reference.as_str() {
-            "mri_gel" => (
-                "mri_lps",
-                truth.markers.iter().map(|m| m.center_mri_mm).collect(),
-            ),
-            "world_gel" => (
-                "world",
-                truth.markers.iter().map(|m| m.center_world_mm).collect(),
-            ),
-            _ => (
-                "world",
-                truth
-                    .markers
-                    .iter()
-                    .map(|m| m.face_center_world_mm)
-                    .collect(),
-            ),
-        };
-        if markers.frame != expected_frame {
-            return Err(OpError::invalid(format!(
-                "markers are in frame `{}`, but reference `{reference}` is in `{expected_frame}`",
-                markers.frame
-            )));
-        }
+        let centres =
+            true_marker_centres(&truth, &reference, &markers.frame, params.count("view")?)
+                .map_err(|e| OpError::invalid(format!("markers: {e}")))?;
         let found: Vec<[f64; 3]> = markers
             .positions_mm
             .chunks(3)
             .map(|c| [c[0], c[1], c[2]])
             .collect();
         let c = compare_markers(&found, &centres, params.float("max_distance_mm")?);
+        ctx.metric("expected", centres.len() as f64);
         ctx.metric("found", c.pairs.len() as f64);
         ctx.metric("missed", c.missed as f64);
         ctx.metric("spurious", c.spurious as f64);
@@ -169,6 +165,96 @@ impl Op for EvalSkinOp {
     }
 }
 
+pub(crate) struct EvalSurfaceOp(OpSpec);
+
+impl EvalSurfaceOp {
+    pub(crate) fn new() -> Self {
+        EvalSurfaceOp(
+            OpSpec::new(
+                "eval.surface",
+                1,
+                "Distances from a point cloud to the phantom's true skin (mean, 95th percentile, max)",
+            )
+            .input(
+                "cloud",
+                &[ValueType::PointCloud],
+                "Surface points, mm (frame camera_left, world or mri_lps)",
+            )
+            .input("truth", &[ValueType::Path], "ground_truth.json")
+            .param(
+                ParamSpec::int(
+                    "view",
+                    0,
+                    "",
+                    "Which view's left camera, for a cloud in camera_left",
+                )
+                .at_least(0.0),
+            )
+            .param(
+                ParamSpec::float(
+                    "marker_margin_mm",
+                    2.0,
+                    "mm",
+                    "Skip points this close to a marker or lesion",
+                )
+                .at_least(0.0),
+            )
+            .param(
+                ParamSpec::float(
+                    "base_margin_mm",
+                    1.0,
+                    "mm",
+                    "Skip points this close to the base (or below it)",
+                )
+                .at_least(0.0),
+            )
+            .output(
+                "mean_mm",
+                ValueType::Scalar,
+                "Mean point-to-skin distance, mm",
+            ),
+        )
+    }
+}
+
+impl Op for EvalSurfaceOp {
+    fn spec(&self) -> &OpSpec {
+        &self.0
+    }
+
+    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
+        let cloud = inputs.get::<PointCloud>("cloud")?;
+        let truth = truth_input(inputs)?;
+        let to_world = frame_to_world(&truth, &cloud.frame, params.count("view")?)
+            .map_err(|e| OpError::invalid(format!("cloud: {e}")))?;
+        let to_phantom = isometry_from_matrix(&truth.phantom_to_world).inverse() * to_world;
+        let points = cloud
+            .points
+            .chunks(3)
+            .map(|c| [c[0] as f64, c[1] as f64, c[2] as f64]);
+        let d = skin_distances(
+            &truth.shape,
+            &to_phantom,
+            points,
+            params.float("marker_margin_mm")?,
+            params.float("base_margin_mm")?,
+        )
+        .ok_or_else(|| {
+            OpError::invalid(format!(
+                "cloud: none of its {} points lies on the skin (away from markers and the base)",
+                cloud.len()
+            ))
+        })?;
+        ctx.metric("mean_mm", d.mean_mm);
+        ctx.metric("rms_mm", d.rms_mm);
+        ctx.metric("p95_mm", d.p95_mm);
+        ctx.metric("max_mm", d.max_mm);
+        ctx.metric("used", d.used as f64);
+        ctx.metric("points", cloud.len() as f64);
+        Ok(Outputs::new().with("mean_mm", d.mean_mm))
+    }
+}
+
 pub(crate) struct EvalCalibrationOp(OpSpec);
 
 impl EvalCalibrationOp {
@@ -246,5 +332,191 @@ impl Op for EvalCalibrationOp {
         let epipolar = e.epipolar_rms_px.unwrap_or(f64::NAN);
         ctx.metric("epipolar_rms_px", epipolar);
         Ok(Outputs::new().with("epipolar_rms_px", epipolar))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::eval::frames::test_truth;
+    use crate::phantom::GroundTruth;
+    use fusegraph_engine::ParamValue;
+    use fusegraph_engine::value::{PathValue, Value};
+    use nalgebra::{Isometry3, Point3, Vector3};
+    use std::path::PathBuf;
+
+    /// The test truth written to a file of its own (tests run in parallel).
+    fn truth_file(name: &str) -> (GroundTruth, PathBuf) {
+        let truth = test_truth();
+        let path =
+            std::env::temp_dir().join(format!("fusegraph-eval-{}-{name}.json", std::process::id()));
+        truth.save(&path).unwrap();
+        (truth, path)
+    }
+
+    fn run(
+        op: &dyn Op,
+        truth: &std::path::Path,
+        port: &str,
+        value: Value,
+        set: &[(&str, ParamValue)],
+    ) -> Result<std::collections::BTreeMap<String, f64>, OpError> {
+        let mut inputs = Inputs::default();
+        inputs.0.insert(port.into(), value);
+        let path = PathValue {
+            path: truth.to_path_buf(),
+            content_hash: String::new(),
+        };
+        inputs.0.insert("truth".into(), path.into());
+        let mut params = Params::default();
+        for p in &op.spec().params {
+            params.0.insert(p.name.clone(), p.default.clone().unwrap());
+        }
+        for (k, v) in set {
+            params.0.insert(k.to_string(), v.clone());
+        }
+        let mut ctx = RunCtx::new("eval", &std::env::temp_dir());
+        op.run(&inputs, &params, &mut ctx)?;
+        Ok(ctx.into_metrics())
+    }
+
+    /// Skin points of the truth well away from markers, lesions and the base,
+    /// each moved a known distance along the skin normal, in world (mm); and
+    /// those distances.
+    fn offset_skin(truth: &GroundTruth) -> (Vec<Point3<f64>>, Vec<f64>) {
+        let to_world = isometry_from_matrix(&truth.phantom_to_world);
+        let shape = &truth.shape;
+        let (mut points, mut offsets) = (Vec::new(), Vec::new());
+        for x in &truth.skin_world_mm {
+            let p = to_world.inverse() * Point3::from(*x);
+            let clear = p.z > 6.0
+                && shape
+                    .markers
+                    .iter()
+                    .all(|m| (p - Point3::from(m.skin_point_mm)).norm() > m.radius_mm + 12.0)
+                && shape
+                    .lesions
+                    .iter()
+                    .all(|l| (p - Point3::from(l.center_mm)).norm() > l.radius_mm + 6.0);
+            if !clear {
+                continue;
+            }
+            let i = points.len();
+            let delta = (0.2 + 0.2 * (i % 5) as f64) * if i % 2 == 0 { 1.0 } else { -1.0 };
+            let normal = to_world.rotation * shape.skin_normal(&p);
+            points.push(Point3::from(*x) + normal * delta);
+            offsets.push(delta.abs());
+        }
+        (points, offsets)
+    }
+
+    fn cloud(points: &[Point3<f64>], to_frame: &Isometry3<f64>, frame: &str) -> Value {
+        let flat: Vec<f32> = points
+            .iter()
+            .flat_map(|p| {
+                (to_frame * p)
+                    .coords
+                    .iter()
+                    .map(|&c| c as f32)
+                    .collect::<Vec<_>>()
+            })
+            .collect();
+        PointCloud::new(flat, None, None, frame).unwrap().into()
+    }
+
+    #[test]
+    fn surface_distances_are_the_known_offsets_along_the_normal() {
+        let (truth, file) = truth_file("surface");
+        let (mut points, offsets) = offset_skin(&truth);
+        assert!(offsets.len() > 100, "{}", offsets.len());
+        let n = offsets.len() as f64;
+        let mean = offsets.iter().sum::<f64>() / n;
+        let rms = (offsets.iter().map(|d| d * d).sum::<f64>() / n).sqrt();
+        let mut sorted = offsets.clone();
+        sorted.sort_by(f64::total_cmp);
+        let p95 = sorted[(0.95 * (n - 1.0)).round() as usize];
+        // Points on marker faces are not skin: skipped.
+        points.extend(
+            truth
+                .markers
+                .iter()
+                .map(|m| Point3::from(m.face_center_world_mm)),
+        );
+        let world_to_camera = isometry_from_matrix(&truth.views[0].left_camera_to_world).inverse();
+        let op = EvalSurfaceOp::new();
+        for (to_frame, frame) in [
+            (world_to_camera, "camera_left"),
+            (Isometry3::identity(), "world"),
+        ] {
+            let m = run(&op, &file, "cloud", cloud(&points, &to_frame, frame), &[]).unwrap();
+            assert_eq!(m["used"], n, "{frame}");
+            assert_eq!(m["points"], n + truth.markers.len() as f64);
+            for (name, expected) in [
+                ("mean_mm", mean),
+                ("rms_mm", rms),
+                ("p95_mm", p95),
+                ("max_mm", 1.0),
+            ] {
+                assert!(
+                    (m[name] - expected).abs() < 1e-3,
+                    "{frame} {name}: {} vs {expected}",
+                    m[name]
+                );
+            }
+        }
+        // The camera cloud measured as if taken from a view it was not: a clear
+        // error, not a number.
+        let c = cloud(&points, &world_to_camera, "camera_left");
+        let err = run(&op, &file, "cloud", c, &[("view", ParamValue::Int(4))]).unwrap_err();
+        assert!(err.to_string().contains("view 4 does not exist"), "{err}");
+        let c = cloud(&points, &world_to_camera, "camera_right");
+        let err = run(&op, &file, "cloud", c, &[]).unwrap_err();
+        assert!(err.to_string().contains("frame `camera_right`"), "{err}");
+        let far = cloud(
+            &[Point3::new(0.0, 0.0, -50.0)],
+            &Isometry3::identity(),
+            "world",
+        );
+        let err = run(&op, &file, "cloud", far, &[]).unwrap_err();
+        assert!(err.to_string().contains("none of its 1 points"), "{err}");
+        std::fs::remove_file(file).unwrap();
+    }
+
+    #[test]
+    fn camera_markers_are_compared_in_the_view_camera() {
+        let (truth, file) = truth_file("markers");
+        let to_camera = isometry_from_matrix(&truth.views[0].left_camera_to_world).inverse();
+        let shift = Vector3::new(0.3, 0.0, -0.4);
+        // Faces of markers 1 and 2 (visible in both images) 0.5 mm off, and a
+        // spurious one; marker 3 is missed; marker 0 is seen by the left camera
+        // only, so it is not expected.
+        let found: Vec<f64> = [1usize, 2]
+            .iter()
+            .map(|&i| to_camera * Point3::from(truth.markers[i].face_center_world_mm) + shift)
+            .chain([Point3::new(0.0, 0.0, 300.0)])
+            .flat_map(|p| p.coords.iter().copied().collect::<Vec<_>>())
+            .collect();
+        let markers = Markers::new(found, vec![7, 8, 9], "camera_left").unwrap();
+        let face = [("reference", ParamValue::String("world_face".into()))];
+        let m = run(
+            &EvalMarkersOp::new(),
+            &file,
+            "markers",
+            markers.clone().into(),
+            &face,
+        )
+        .unwrap();
+        assert_eq!(
+            (m["expected"], m["found"], m["missed"], m["spurious"]),
+            (3.0, 2.0, 1.0, 1.0)
+        );
+        assert!((m["mean_error_mm"] - 0.5).abs() < 1e-9);
+        assert!((m["max_error_mm"] - 0.5).abs() < 1e-9);
+        let err = run(&EvalMarkersOp::new(), &file, "markers", markers.into(), &[]).unwrap_err();
+        assert!(
+            err.to_string().contains("takes markers in mri_lps"),
+            "{err}"
+        );
+        std::fs::remove_file(file).unwrap();
     }
 }

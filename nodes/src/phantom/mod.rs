@@ -15,6 +15,7 @@ mod rig;
 mod scenes;
 mod shape;
 mod texture;
+mod true_disparity;
 mod truth;
 
 pub use camera_surface::{SimulatedSurface, SurfaceSimParams, simulate_camera_surface};
@@ -23,6 +24,7 @@ pub(crate) use ops::{optional_truth_input, truth_input};
 pub use rig::Rig;
 pub use scenes::MARKER_GREEN;
 pub use shape::{Lesion, Marker, Material, PhantomShape, ShapeParams};
+pub use true_disparity::{SceneLabel, TrueDisparity, ViewScene, true_disparity};
 pub use truth::*;
 
 use fusegraph_engine::Registry;
@@ -34,5 +36,6 @@ pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.register(Arc::new(ops::GenerateOp::new()))?;
     registry.register(Arc::new(ops::CameraSurfaceOp::new()))?;
     registry.register(Arc::new(ops::RigPoseOp::new()))?;
+    registry.register(Arc::new(ops::TrueDisparityOp::new()))?;
     Ok(())
 }

@@ -1,10 +1,15 @@
-//! Node adapters: `phantom.generate` and `phantom.camera_surface`.
+//! Node adapters: `phantom.generate`, `phantom.camera_surface`, `phantom.rig_pose`
+//! and `phantom.true_disparity`.
 
 use super::camera_surface::{SurfaceSimParams, simulate_camera_surface};
 use super::generate::{PhantomConfig, PhantomSize, generate};
 use super::shape::ShapeParams;
+use super::true_disparity::{ViewScene, true_disparity};
 use super::truth::GroundTruth;
-use fusegraph_engine::value::{Markers, PathValue, PointCloud};
+use crate::camera::CameraModel;
+use fusegraph_engine::value::{
+    Disparity, Image, Markers, PathValue, Pixels, PointCloud, Rectification, StereoRig,
+};
 use fusegraph_engine::{
     Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType, path_value,
 };
@@ -251,6 +256,81 @@ impl Op for RigPoseOp {
                 to: "world".into(),
             },
         ))
+    }
+}
+
+pub(crate) struct TrueDisparityOp(OpSpec);
+
+impl TrueDisparityOp {
+    pub(crate) fn new() -> Self {
+        TrueDisparityOp(
+            OpSpec::new(
+                "phantom.true_disparity",
+                1,
+                "True disparity of a view pair as rectified with an estimated rig (calibration error included)",
+            )
+            .input("truth", &[ValueType::Path], "ground_truth.json of a phantom")
+            .input(
+                "rig",
+                &[ValueType::StereoRig],
+                "The rig the images are rectified with (usually the estimated one)",
+            )
+            .input(
+                "rectification",
+                &[ValueType::Rectification],
+                "calib.rectify of that rig",
+            )
+            .param(ParamSpec::int("view", 0, "", "Which view pair").at_least(0.0))
+            .output(
+                "disparity",
+                ValueType::Disparity,
+                "x_left - x_right on the left rectified image, px; NaN where unknown (nothing hit, outside either image, hidden from the right camera)",
+            )
+            .output(
+                "mask",
+                ValueType::Image,
+                "Grey u8, left rectified: 255 where the pixel sees skin and the disparity is known",
+            )
+            .output(
+                "labels",
+                ValueType::Image,
+                "Grey u8, left rectified: 0 nothing, 1 table, 2 skin, 3 marker side, 4 marker face",
+            ),
+        )
+    }
+}
+
+impl Op for TrueDisparityOp {
+    fn spec(&self) -> &OpSpec {
+        &self.0
+    }
+
+    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
+        let truth = truth_input(inputs)?;
+        let rig = inputs.get::<StereoRig>("rig")?;
+        let rect = crate::calib::rectification_of(&*inputs.get::<Rectification>("rectification")?);
+        let scene =
+            ViewScene::from_truth(&truth, params.count("view")?).map_err(OpError::invalid)?;
+        let (left, right) = (
+            CameraModel::from_value(&rig.left),
+            CameraModel::from_value(&rig.right),
+        );
+        let t = true_disparity(&scene, &left, &right, &rect).map_err(OpError::invalid)?;
+        let total = (t.width * t.height) as f64;
+        ctx.metric("known_pct", 100.0 * t.known as f64 / total);
+        ctx.metric("skin_pct", 100.0 * t.skin as f64 / total);
+        ctx.metric("row_error_px", t.row_error_px);
+        ctx.metric("min_px", t.min_px);
+        ctx.metric("max_px", t.max_px);
+        let (w, h) = (t.width, t.height);
+        let grey = |data: Vec<u8>| {
+            Image::new(w, h, 1, Pixels::U8(data.into())).map_err(|e| OpError::invalid(e.0))
+        };
+        let disparity = Disparity::new(w, h, t.disparity_px).map_err(|e| OpError::invalid(e.0))?;
+        Ok(Outputs::new()
+            .with("disparity", disparity)
+            .with("mask", grey(t.mask)?)
+            .with("labels", grey(t.labels)?))
     }
 }
 

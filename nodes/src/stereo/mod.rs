@@ -7,14 +7,25 @@
 //! at pixel centres, OpenCV); disparity is `x_left - x_right` in px; 3D points
 //! are in mm in the original (unrectified) left camera frame `camera_left`.
 
+mod blobs;
+mod hsv_markers;
+mod markers_op;
 mod triangulate;
 
+pub use blobs::{MomentEllipse, components, dilate, ellipse_fit, erode, open_close, soft_centroid};
+pub use hsv_markers::{
+    Blob, BlobParams, PairParams, StereoMarker, StereoMarkers, find_blobs, hsv, hue_score,
+    pair_blobs, stereo_markers,
+};
+pub use markers_op::BLOB_COLUMNS;
 pub use triangulate::point_from_disparity;
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;
+use std::sync::Arc;
 
 /// Registers the `stereo.*` ops.
-pub fn register(_registry: &mut Registry) -> Result<(), RegisterError> {
+pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
+    registry.register(Arc::new(markers_op::HsvMarkersOp::new()))?;
     Ok(())
 }

@@ -206,12 +206,15 @@ fn median(mut v: Vec<f64>) -> Option<f64> {
 /// is linear in the pixel's RGB, so a pixel covered a fraction `a` by the blob
 /// scores `a * inside + (1 - a) * outside`):
 ///
-/// - `inside` is the median score of the blob eroded by 1 px (the blob itself
-///   when that is empty), `outside` the median over a ring 3-4 px beyond it;
-/// - pixels of the eroded blob weigh 1, so shading across the blob does not
-///   pull the centroid;
+/// - pixels of the blob eroded by 1 px (its core) weigh 1, so shading across
+///   the blob does not pull the centroid;
 /// - pixels of the blob's edge and of a `border_px` band around it weigh
-///   `(score - outside) / (inside - outside)`, clamped to 0..1;
+///   `(score - outside) / (inside - outside)`, clamped to 0..1, where `inside`
+///   is the mean score of the core pixels and `outside` that of a ring 1-2 px
+///   beyond the band, both within `border_px + 3` px of the pixel: local
+///   references, because what surrounds a marker differs around it (skin on
+///   one side, its own bright rim on the other); the medians over the whole
+///   core and ring stand in where no such pixel is near;
 /// - pixels of other blobs are left out.
 ///
 /// Returns the centroid and the sum of weights (the blob's area in px with
@@ -233,7 +236,7 @@ pub fn soft_centroid(
         (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
     }
     // Work in a window around the blob wide enough for the background ring.
-    let pad = border_px as isize + 4;
+    let pad = border_px as isize + 3;
     let (wx0, wy0) = ((x0 - pad).max(0), (y0 - pad).max(0));
     let (wx1, wy1) = (
         (x1 + pad).min(width as isize - 1),
@@ -248,23 +251,19 @@ pub fn soft_centroid(
     }
     let core = erode(&own, ww, wh, 1);
     let band = dilate(&own, ww, wh, border_px);
-    let ring_inner = dilate(&own, ww, wh, border_px + 2);
-    let ring_outer = dilate(&own, ww, wh, border_px + 4);
     let other = |k: usize| {
         let l = labels[global(k % ww, k / ww)];
         l != 0 && l != label
     };
-    let core_scores: Vec<f64> = (0..ww * wh)
-        .filter(|&k| core[k])
-        .map(|k| score[global(k % ww, k / ww)])
+    let ring: Vec<bool> = dilate(&own, ww, wh, border_px + 2)
+        .iter()
+        .enumerate()
+        .map(|(k, &r)| r && !band[k] && !other(k))
         .collect();
-    let inside = median(core_scores).or_else(|| median(pixels.iter().map(|&i| score[i]).collect()));
-    let outside = median(
-        (0..ww * wh)
-            .filter(|&k| ring_outer[k] && !ring_inner[k] && !other(k))
-            .map(|k| score[global(k % ww, k / ww)])
-            .collect(),
-    );
+    let local_score = |k: usize| score[global(k % ww, k / ww)];
+    let inside = median((0..ww * wh).filter(|&k| core[k]).map(local_score).collect())
+        .or_else(|| median(pixels.iter().map(|&i| score[i]).collect()));
+    let outside = median((0..ww * wh).filter(|&k| ring[k]).map(local_score).collect());
     let binary = || {
         let n = pixels.len() as f64;
         let (sx, sy) = pixels.iter().fold((0.0, 0.0), |(a, b), &i| {
@@ -275,10 +274,24 @@ pub fn soft_centroid(
     let (Some(inside), Some(outside)) = (inside, outside) else {
         return binary();
     };
-    let contrast = inside - outside;
-    if !(contrast.abs() > 1e-6) || !contrast.is_finite() {
+    if !((inside - outside).abs() > 1e-6) || !(inside - outside).is_finite() {
         return binary();
     }
+    // Mean of `score` over the pixels of `set` within `reach` of (lx, ly).
+    let reach = border_px as isize + 3;
+    let local_mean = |set: &[bool], lx: usize, ly: usize, fallback: f64| {
+        let (mut sum, mut n) = (0.0, 0usize);
+        for y in (ly as isize - reach).max(0)..=(ly as isize + reach).min(wh as isize - 1) {
+            for x in (lx as isize - reach).max(0)..=(lx as isize + reach).min(ww as isize - 1) {
+                let k = y as usize * ww + x as usize;
+                if set[k] {
+                    sum += local_score(k);
+                    n += 1;
+                }
+            }
+        }
+        if n > 0 { sum / n as f64 } else { fallback }
+    };
     let (mut sw, mut sx, mut sy) = (0.0, 0.0, 0.0);
     for k in 0..ww * wh {
         if !band[k] || other(k) {
@@ -288,7 +301,16 @@ pub fn soft_centroid(
         let w = if core[k] {
             1.0
         } else {
-            ((score[global(lx, ly)] - outside) / contrast).clamp(0.0, 1.0)
+            let (fg, bg) = (
+                local_mean(&core, lx, ly, inside),
+                local_mean(&ring, lx, ly, outside),
+            );
+            let contrast = if (fg - bg).abs() > 1e-6 {
+                fg - bg
+            } else {
+                inside - outside
+            };
+            ((local_score(k) - bg) / contrast).clamp(0.0, 1.0)
         };
         sw += w;
         sx += w * (wx0 as usize + lx) as f64;

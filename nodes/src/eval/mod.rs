@@ -2,11 +2,13 @@
 //! and surface distances.
 
 mod calibration;
+mod disparity;
 mod markers;
 mod ops;
 mod surface;
 
 pub use calibration::{CalibrationErrors, compare_calibration};
+pub use disparity::{DisparityErrors, bad_metric_name, disparity_errors};
 pub use markers::{MarkerComparison, compare_markers};
 pub use surface::{SurfaceDistances, skin_distances};
 
@@ -19,5 +21,6 @@ pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.register(Arc::new(ops::EvalMarkersOp::new()))?;
     registry.register(Arc::new(ops::EvalSkinOp::new()))?;
     registry.register(Arc::new(ops::EvalCalibrationOp::new()))?;
+    registry.register(Arc::new(ops::EvalDisparityOp::new()))?;
     Ok(())
 }

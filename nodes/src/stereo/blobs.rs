@@ -146,7 +146,7 @@ impl MomentEllipse {
     pub fn contains(&self, x: f64, y: f64) -> bool {
         let (xx, xy, yy) = self.covariance_px2;
         let det = xx * yy - xy * xy;
-        if !(det > 0.0) {
+        if det.is_nan() || det <= 0.0 {
             return false;
         }
         let (dx, dy) = (x - self.centre_px.0, y - self.centre_px.1);
@@ -274,7 +274,7 @@ pub fn soft_centroid(
     let (Some(inside), Some(outside)) = (inside, outside) else {
         return binary();
     };
-    if !((inside - outside).abs() > 1e-6) || !(inside - outside).is_finite() {
+    if !(inside - outside).is_finite() || (inside - outside).abs() <= 1e-6 {
         return binary();
     }
     // Mean of `score` over the pixels of `set` within `reach` of (lx, ly).
@@ -316,7 +316,7 @@ pub fn soft_centroid(
         sx += w * (wx0 as usize + lx) as f64;
         sy += w * (wy0 as usize + ly) as f64;
     }
-    if !(sw > 0.0) {
+    if sw.is_nan() || sw <= 0.0 {
         return binary();
     }
     ((sx / sw, sy / sw), sw)

@@ -81,7 +81,7 @@ impl BlobParams {
         if !(0.0..=360.0).contains(&h0) || !(0.0..=360.0).contains(&h1) {
             return Err(format!("hue_deg [{h0}, {h1}]: both must be in 0..360 deg"));
         }
-        if !(self.min_area_px <= self.max_area_px) {
+        if self.min_area_px > self.max_area_px {
             return Err(format!(
                 "min_area_px {} is above max_area_px {}",
                 self.min_area_px, self.max_area_px
@@ -185,7 +185,7 @@ pub fn find_blobs(
                 return None;
             }
             let aspect = MomentEllipse::of(px, width)?.aspect();
-            if !(aspect <= p.max_aspect) {
+            if aspect.is_nan() || aspect > p.max_aspect {
                 return None;
             }
             let fit = ellipse_fit(px, width, height);

@@ -184,7 +184,7 @@ impl Op for HsvMarkersOp {
             max_disparity_px: inputs.optional::<f64>("max_disparity")?.map(|v| *v),
         };
         if let (Some(lo), Some(hi)) = (pair.min_disparity_px, pair.max_disparity_px)
-            && !(lo <= hi)
+            && (lo.is_nan() || hi.is_nan() || lo > hi)
         {
             return Err(OpError::invalid(format!(
                 "empty disparity range: min_disparity {lo} px is above max_disparity {hi} px"
@@ -228,5 +228,132 @@ impl Op for HsvMarkersOp {
         ctx.metric("blobs_left", found.blobs_left as f64);
         ctx.metric("blobs_right", found.blobs_right as f64);
         Ok(Outputs::new().with("markers", markers).with("blobs", table))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fusegraph_engine::param::ParamValue;
+    use std::collections::BTreeMap;
+
+    fn params(op: &HsvMarkersOp) -> Params {
+        Params(
+            op.spec()
+                .params
+                .iter()
+                .map(|p| (p.name.clone(), p.default.clone().unwrap()))
+                .collect(),
+        )
+    }
+
+    fn rectification(width: usize, height: usize) -> Rectification {
+        let eye = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let (f, b) = (1000.0, 50.0);
+        Rectification {
+            width,
+            height,
+            r1: eye,
+            r2: eye,
+            p1: [
+                [f, 0.0, 20.0, 0.0],
+                [0.0, f, 15.0, 0.0],
+                [0.0, 0.0, 1.0, 0.0],
+            ],
+            p2: [
+                [f, 0.0, 20.0, -f * b],
+                [0.0, f, 15.0, 0.0],
+                [0.0, 0.0, 1.0, 0.0],
+            ],
+            q: [
+                [1.0, 0.0, 0.0, -20.0],
+                [0.0, 1.0, 0.0, -15.0],
+                [0.0, 0.0, 0.0, f],
+                [0.0, 0.0, 1.0 / b, 0.0],
+            ],
+        }
+    }
+
+    /// A green disc of radius 6 px at (cx, 15) on grey.
+    fn image(cx: f64) -> Image {
+        let (w, h) = (60, 30);
+        let px: Vec<u8> = (0..w * h)
+            .flat_map(|i| {
+                let (x, y) = ((i % w) as f64, (i / w) as f64);
+                if (x - cx).powi(2) + (y - 15.0).powi(2) <= 36.0 {
+                    [25, 184, 51]
+                } else {
+                    [120, 120, 120]
+                }
+            })
+            .collect();
+        Image::new(w, h, 3, Pixels::U8(px.into())).unwrap()
+    }
+
+    fn run(inputs: Vec<(&str, fusegraph_engine::Value)>, p: &Params) -> Result<Outputs, OpError> {
+        let op = HsvMarkersOp::new();
+        let inputs = Inputs(
+            inputs
+                .into_iter()
+                .map(|(k, v)| (k.to_string(), v))
+                .collect::<BTreeMap<_, _>>(),
+        );
+        op.run(
+            &inputs,
+            p,
+            &mut RunCtx::new("m", std::path::Path::new("/tmp")),
+        )
+    }
+
+    #[test]
+    fn finds_a_pair_and_reports_bad_inputs() {
+        let op = HsvMarkersOp::new();
+        op.spec().check().unwrap();
+        let p = params(&op);
+        let base = || {
+            vec![
+                ("left", image(40.0).into()),
+                ("right", image(30.0).into()),
+                ("rectification", rectification(60, 30).into()),
+            ]
+        };
+        let out = run(base(), &p).unwrap();
+        let Some(fusegraph_engine::Value::Markers(m)) = out.0.get("markers") else {
+            panic!("no markers")
+        };
+        assert_eq!((m.len(), m.frame.as_str()), (1, "camera_left"));
+        // Disparity 10 px with f = 1000 px, b = 50 mm: z = 5000 mm; x = 20 px
+        // right of the principal point: 100 mm.
+        let z = m.positions_mm[2];
+        assert!(
+            (z - 5000.0).abs() < 5.0 && (m.positions_mm[0] - 100.0).abs() < 0.2,
+            "{m:?}"
+        );
+        let Some(fusegraph_engine::Value::Table(t)) = out.0.get("blobs") else {
+            panic!("no table")
+        };
+        assert_eq!(t.columns, BLOB_COLUMNS);
+        assert!((t.column("disparity_px").unwrap()[0] - 10.0).abs() < 0.01);
+
+        let mut grey = base();
+        grey[0].1 = Image::new(60, 30, 1, Pixels::U8(vec![0u8; 1800].into()))
+            .unwrap()
+            .into();
+        let err = run(grey, &p).unwrap_err().to_string();
+        assert!(err.contains("`left`") && err.contains("8-bit RGB"), "{err}");
+        let mut sizes = base();
+        sizes[2].1 = rectification(64, 30).into();
+        let err = run(sizes, &p).unwrap_err().to_string();
+        assert!(err.contains("60 x 30") && err.contains("64 x 30"), "{err}");
+        let mut range = base();
+        range.push(("min_disparity", 20.0.into()));
+        range.push(("max_disparity", 5.0.into()));
+        let err = run(range, &p).unwrap_err().to_string();
+        assert!(err.contains("empty disparity range"), "{err}");
+        let mut hue = p.clone();
+        hue.0
+            .insert("hue_deg".into(), ParamValue::FloatList(vec![100.0]));
+        let err = run(base(), &hue).unwrap_err().to_string();
+        assert!(err.contains("hue_deg"), "{err}");
     }
 }

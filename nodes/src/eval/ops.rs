@@ -1,12 +1,15 @@
-//! Node adapters: `eval.markers`, `eval.skin_distance`, `eval.surface` and
-//! `eval.calibration`.
+//! Node adapters: `eval.markers`, `eval.skin_distance`, `eval.surface`,
+//! `eval.calibration` and `eval.disparity`.
 
 use super::{
-    compare_calibration, compare_markers, frame_to_world, skin_distances, true_marker_centres,
+    bad_metric_name, compare_calibration, compare_markers, disparity_errors, frame_to_world,
+    skin_distances, true_marker_centres,
 };
 use crate::camera::isometry_from_matrix;
 use crate::phantom::truth_input;
-use fusegraph_engine::value::{Markers, Mesh, PointCloud, Rectification, StereoRig};
+use fusegraph_engine::value::{
+    Disparity, Image, Markers, Mesh, PointCloud, Rectification, StereoRig,
+};
 use fusegraph_engine::{
     Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType,
 };
@@ -332,6 +335,97 @@ impl Op for EvalCalibrationOp {
         let epipolar = e.epipolar_rms_px.unwrap_or(f64::NAN);
         ctx.metric("epipolar_rms_px", epipolar);
         Ok(Outputs::new().with("epipolar_rms_px", epipolar))
+    }
+}
+
+pub(crate) struct EvalDisparityOp(OpSpec);
+
+impl EvalDisparityOp {
+    pub(crate) fn new() -> Self {
+        EvalDisparityOp(
+            OpSpec::new(
+                "eval.disparity",
+                1,
+                "A disparity map against the true one: bad-N % (invalid counted bad), MAE, RMSE, coverage",
+            )
+            .input("disparity", &[ValueType::Disparity], "Estimated disparity, px")
+            .input("truth", &[ValueType::Disparity], "True disparity, px (0, NaN or inf = unknown)")
+            .optional_input(
+                "mask",
+                &[ValueType::Image],
+                "Where to evaluate (nonzero pixels), same size",
+            )
+            .param(
+                ParamSpec::float_list(
+                    "thresholds_px",
+                    &[0.5, 1.0, 2.0, 4.0],
+                    "px",
+                    "Error thresholds of the bad_N_pct metrics",
+                )
+                .at_least(0.0),
+            )
+            .output(
+                "bad_2_pct",
+                ValueType::Scalar,
+                "Evaluated pixels off by more than 2 px or without an estimate, %",
+            ),
+        )
+    }
+}
+
+impl Op for EvalDisparityOp {
+    fn spec(&self) -> &OpSpec {
+        &self.0
+    }
+
+    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
+        let est = inputs.get::<Disparity>("disparity")?;
+        let truth = inputs.get::<Disparity>("truth")?;
+        if (est.width, est.height) != (truth.width, truth.height) {
+            return Err(OpError::invalid(format!(
+                "input `disparity` is {} x {} px but `truth` is {} x {} px",
+                est.width, est.height, truth.width, truth.height
+            )));
+        }
+        let mask: Option<Arc<Image>> = inputs.optional("mask")?;
+        let mask = match mask {
+            None => None,
+            Some(m) if (m.width, m.height) != (truth.width, truth.height) => {
+                return Err(OpError::invalid(format!(
+                    "input `mask` is {} x {} px but `truth` is {} x {} px",
+                    m.width, m.height, truth.width, truth.height
+                )));
+            }
+            Some(m) => Some(
+                crate::io::grey_of(&m)
+                    .iter()
+                    .map(|&v| v > 0.0)
+                    .collect::<Vec<bool>>(),
+            ),
+        };
+        let mut thresholds = params.float_list("thresholds_px")?;
+        if !thresholds.contains(&2.0) {
+            thresholds.push(2.0);
+        }
+        let e = disparity_errors(&est.data, &truth.data, mask.as_deref(), &thresholds)
+            .map_err(OpError::invalid)?;
+        if e.evaluated == 0 {
+            return Err(OpError::invalid(
+                "no pixel to evaluate: the truth is unknown everywhere (or the mask is empty)",
+            ));
+        }
+        for (&t, &pct) in thresholds.iter().zip(&e.bad_pct) {
+            ctx.metric(&bad_metric_name(t), pct);
+        }
+        ctx.metric("mae_px", e.mae_px);
+        ctx.metric("rmse_px", e.rmse_px);
+        ctx.metric("coverage_pct", e.coverage_pct);
+        ctx.metric("evaluated", e.evaluated as f64);
+        let bad2 = thresholds
+            .iter()
+            .position(|&t| t == 2.0)
+            .map_or(f64::NAN, |k| e.bad_pct[k]);
+        Ok(Outputs::new().with("bad_2_pct", bad2))
     }
 }
 

@@ -1,6 +1,7 @@
 //! File nodes: sources that read files into the graph and sinks (`io.write_*`)
 //! that write values under the run's output folder.
 
+mod disparity;
 mod images;
 mod path;
 mod write_json;
@@ -10,6 +11,9 @@ mod write_registration;
 mod write_rig;
 mod write_table;
 
+pub use disparity::{
+    decode_pfm, decode_pgm, disparity_png, encode_pfm, finite_percentiles, read_disparity, viridis,
+};
 pub use images::{grey_of, load_image, side_by_side};
 pub use write_json::value_to_json;
 pub use write_markers::{markers_csv, slicer_markups};
@@ -34,5 +38,7 @@ pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.register(Arc::new(write_markers::WriteMarkersOp::new()))?;
     registry.register(Arc::new(write_mesh::WriteMeshOp::new()))?;
     registry.register(Arc::new(write_table::WriteTableOp::new()))?;
+    registry.register(Arc::new(disparity::ReadDisparityOp::new()))?;
+    registry.register(Arc::new(disparity::WriteDisparityOp::new()))?;
     Ok(())
 }

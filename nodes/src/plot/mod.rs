@@ -37,7 +37,7 @@ pub struct LinePlot {
     pub size_px: (u32, u32),
 }
 
-fn register_font() {
+pub(crate) fn register_font() {
     static FONT: Once = Once::new();
     FONT.call_once(|| {
         let _ = plotters::style::register_font(

@@ -29,6 +29,16 @@ pub use refine::{RefineParams, refine_disparity};
 pub use select::{SelectParams, select};
 pub use sgm::{Aggregated, Paths, SgmParams, aggregate};
 pub use simd::Isa;
+mod blobs;
+mod hsv_markers;
+mod markers_op;
+
+pub use blobs::{MomentEllipse, components, dilate, ellipse_fit, erode, open_close, soft_centroid};
+pub use hsv_markers::{
+    Blob, BlobParams, PairParams, StereoMarker, StereoMarkers, find_blobs, hsv, hue_score,
+    pair_blobs, stereo_markers,
+};
+pub use markers_op::BLOB_COLUMNS;
 pub use triangulate::point_from_disparity;
 
 use fusegraph_engine::Registry;
@@ -40,5 +50,6 @@ pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.register(Arc::new(dense_ops::SgmOp::new()))?;
     registry.register(Arc::new(dense_ops::BlockMatchOp::new()))?;
     registry.register(Arc::new(dense_ops::TriangulateOp::new()))?;
+    registry.register(Arc::new(markers_op::HsvMarkersOp::new()))?;
     Ok(())
 }

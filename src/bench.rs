@@ -50,6 +50,38 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 3)]
         repeat: usize,
     },
+    /// Semi-global matching with stereo.sgm's defaults on rectified pairs:
+    /// time (best of --repeat) and, with a truth, bad-1 / bad-2 (invalid counted
+    /// as bad), MAE and coverage. Without --left: a phantom view pair rectified
+    /// with the true rig (800 x 600, 128 disparities) and the Middlebury pairs
+    /// in tests/data/stereo (450 x 375, 64 disparities). Writes each pair (and
+    /// truth as PFM) under --out for `../shared/bench/peers.py sgbm`.
+    Sgm {
+        /// Left rectified image.
+        #[arg(long, requires = "right")]
+        left: Option<std::path::PathBuf>,
+        /// Right rectified image.
+        #[arg(long)]
+        right: Option<std::path::PathBuf>,
+        /// Ground-truth disparity of the left image (PFM, PNG or PGM).
+        #[arg(long)]
+        truth: Option<std::path::PathBuf>,
+        /// Divide the truth file's values by this (4 for Middlebury 2003).
+        #[arg(long, default_value_t = 1.0)]
+        truth_scale: f64,
+        /// Smallest disparity, px.
+        #[arg(long, default_value_t = 0)]
+        min_disparity: i32,
+        /// Number of disparities.
+        #[arg(long, default_value_t = 64)]
+        disparities: usize,
+        /// Repetitions; the best time is reported.
+        #[arg(long, default_value_t = 5)]
+        repeat: usize,
+        /// Folder for the pairs given to the peers [default: a temporary one].
+        #[arg(long)]
+        out: Option<std::path::PathBuf>,
+    },
 }
 
 /// A graph of `n` trivial nodes: 10 constants, then binary nodes each reading two
@@ -95,6 +127,32 @@ pub fn run_bench(what: BenchCommand, registry: &Registry) -> anyhow::Result<()> 
             dicom,
             repeat,
         } => marching_cubes(size, dicom.as_deref(), repeat),
+        BenchCommand::Sgm {
+            left,
+            right,
+            truth,
+            truth_scale,
+            min_disparity,
+            disparities,
+            repeat,
+            out,
+        } => {
+            let dir = tempfile::tempdir()?;
+            let folder = out.unwrap_or_else(|| dir.path().to_path_buf());
+            std::fs::create_dir_all(&folder)?;
+            let cases = match (left, right) {
+                (Some(l), Some(r)) => vec![crate::bench_sgm::SgmCase::from_files(
+                    &l,
+                    &r,
+                    truth.as_deref(),
+                    truth_scale,
+                    min_disparity,
+                    disparities,
+                )?],
+                _ => crate::bench_sgm::default_cases(&folder)?,
+            };
+            crate::bench_sgm::run(&cases, repeat, &folder)
+        }
     }
 }
 

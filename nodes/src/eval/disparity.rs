@@ -3,8 +3,9 @@
 //! estimates counted as bad), coverage, and the errors of valid estimates.
 
 /// How an estimated disparity map compares to the truth, over the evaluated
-/// pixels: those where the truth is known (finite and > 0, as peers.py reads
-/// Middlebury files where 0 and inf mark unknown) and the mask, if any, is set.
+/// pixels: those where the truth is known (finite and not 0: Middlebury files
+/// mark unknown pixels 0 or inf; negative disparities of verged rigs count) and
+/// the mask, if any, is set.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DisparityErrors {
     /// Pixels evaluated.
@@ -50,7 +51,7 @@ pub fn disparity_errors(
     let mut bad = vec![0usize; thresholds_px.len()];
     let (mut sum_abs, mut sum_sq) = (0.0f64, 0.0f64);
     for (i, (&d, &t)) in estimate.iter().zip(truth).enumerate() {
-        if !(t.is_finite() && t > 0.0) || mask.is_some_and(|m| !m[i]) {
+        if !(t.is_finite() && t != 0.0) || mask.is_some_and(|m| !m[i]) {
             continue;
         }
         evaluated += 1;
@@ -121,6 +122,9 @@ mod tests {
         let none = disparity_errors(&[f32::NAN], &[2.0], None, &[1.0]).unwrap();
         assert_eq!((none.bad_pct[0], none.coverage_pct), (100.0, 0.0));
         assert!(none.mae_px.is_nan());
+        // A verged rig's negative disparities are known values, not unknown.
+        let neg = disparity_errors(&[-3.0], &[-3.5], None, &[1.0]).unwrap();
+        assert_eq!((neg.evaluated, neg.mae_px), (1, 0.5));
     }
 
     #[test]

@@ -94,7 +94,7 @@ impl EvalSkinOp {
         EvalSkinOp(
             OpSpec::new(
                 "eval.skin_distance",
-                2,
+                3,
                 "Distances from a surface's vertices to the phantom's true skin",
             )
             .input(
@@ -175,7 +175,7 @@ impl EvalSurfaceOp {
         EvalSurfaceOp(
             OpSpec::new(
                 "eval.surface",
-                1,
+                2,
                 "Distances from a point cloud to the phantom's true skin (mean, 95th percentile, max)",
             )
             .input(

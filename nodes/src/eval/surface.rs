@@ -20,8 +20,10 @@ pub struct SurfaceDistances {
 
 /// Distances from `vertices` (in a frame mapped to the phantom frame by
 /// `to_phantom`) to the true skin, skipping vertices of other structures: on or
-/// near markers or lesions (within `marker_margin_mm` of their extent) and on the
-/// base (phantom z below `base_margin_mm`). `None` when no vertex is left.
+/// near markers or lesions (within `marker_margin_mm` of their extent), on the
+/// base (phantom z below `base_margin_mm`), and nearer the base plane (the
+/// table a camera sees around the phantom) than the skin. `None` when no vertex
+/// is left.
 pub fn skin_distances(
     shape: &PhantomShape,
     to_phantom: &Isometry3<f64>,
@@ -49,7 +51,9 @@ pub fn skin_distances(
                 .iter()
                 .all(|l| (p - Point3::from(l.center_mm)).norm() > l.radius_mm + marker_margin_mm)
         })
-        .map(|p| shape.distance_to_ellipsoid(&p))
+        .map(|p| (shape.distance_to_ellipsoid(&p), p.z))
+        .filter(|&(skin, above_base)| skin <= above_base)
+        .map(|(skin, _)| skin)
         .collect();
     if d.is_empty() {
         return None;

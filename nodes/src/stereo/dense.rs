@@ -47,6 +47,41 @@ pub struct SgmConfig {
     pub refine: Option<RefineParams>,
 }
 
+impl Default for SgmConfig {
+    /// The defaults of `stereo.sgm`: census 9 x 7 (costs 0..62 bits), 8 paths,
+    /// P1 = 8 and P2 = 80 bits (P2 about a wrong match's cost, so a jump needs
+    /// evidence from several pixels) falling at intensity edges (gamma 8 grey
+    /// levels), OpenCV's uniqueness (10 %), left-right (1 px) and speckle
+    /// (100 px, 2 px) settings, and intensity refinement over 9 x 9 windows.
+    fn default() -> Self {
+        SgmConfig {
+            cost: MatchCost::Census {
+                width: 9,
+                height: 7,
+            },
+            sgm: SgmParams {
+                p1: 8,
+                p2: 80,
+                paths: super::sgm::Paths::Eight,
+                p2_gamma: 8.0,
+            },
+            select: SelectParams {
+                uniqueness_pct: 10.0,
+                lr_max_diff_px: Some(1.0),
+                subpixel: true,
+            },
+            speckle_size_px: 100,
+            speckle_range_px: 2.0,
+            max_memory_mb: 4096,
+            refine: Some(RefineParams {
+                half_window: 4,
+                iterations: 5,
+                max_change_px: 1.0,
+            }),
+        }
+    }
+}
+
 /// Bytes per cost cell: the 8-bit cost and two 16-bit pass sums.
 const BYTES_PER_CELL: usize = 5;
 

@@ -5,6 +5,7 @@ use super::block_match::{BlockCost, block_match};
 use super::dense::{MatchCost, SgmConfig, sgm_disparity};
 use super::filter::filter_speckles;
 use super::pair::{DisparityRange, GreyImage, check_pair};
+use super::refine::{RefineParams, refine_disparity};
 use super::select::SelectParams;
 use super::sgm::{Paths, SgmParams};
 use super::triangulate::point_from_disparity;
@@ -17,6 +18,8 @@ use rayon::prelude::*;
 
 /// The ports and parameters every dense matcher shares.
 fn matcher_spec(name: &str, version: u32, doc: &str) -> OpSpec {
+    let d = SgmConfig::default();
+    let refine_window = d.refine.map_or(9, |r| 2 * r.half_window as i64 + 1);
     OpSpec::new(name, version, doc)
         .input("left", &[ValueType::Image], "Left rectified image")
         .input("right", &[ValueType::Image], "Right rectified image (same size)")
@@ -45,7 +48,7 @@ fn matcher_spec(name: &str, version: u32, doc: &str) -> OpSpec {
         .param(
             ParamSpec::float(
                 "uniqueness_pct",
-                10.0,
+                d.select.uniqueness_pct,
                 "%",
                 "Invalid when another disparity (beyond +-1) costs less than best x (1 + this/100); 0 = off",
             )
@@ -53,19 +56,28 @@ fn matcher_spec(name: &str, version: u32, doc: &str) -> OpSpec {
         )
         .param(ParamSpec::float(
             "lr_max_diff_px",
-            1.0,
+            d.select.lr_max_diff_px.unwrap_or(-1.0),
             "px",
             "Left-right check: largest difference from the right image's disparity; negative = off",
         ))
         .param(ParamSpec::bool(
             "subpixel",
-            true,
+            d.select.subpixel,
             "Fit a parabola to the costs around the best disparity",
         ))
+        .param(ParamSpec::choice(
+            "refine",
+            &["intensity", "none"],
+            "intensity: then align the intensities along the row (Lucas-Kanade, +-1 px) for sub-pixel accuracy; none: keep the parabola",
+        ))
+        .param(
+            ParamSpec::int("refine_window_px", refine_window, "px", "Window of the intensity refinement (odd)")
+                .range(3.0, 31.0),
+        )
         .param(
             ParamSpec::int(
                 "speckle_size_px",
-                100,
+                d.speckle_size_px as i64,
                 "px",
                 "Remove regions of similar disparity this small or smaller (0 = off)",
             )
@@ -74,7 +86,7 @@ fn matcher_spec(name: &str, version: u32, doc: &str) -> OpSpec {
         .param(
             ParamSpec::float(
                 "speckle_range_px",
-                2.0,
+                d.speckle_range_px as f64,
                 "px",
                 "Largest step between neighbours inside one speckle region",
             )
@@ -116,6 +128,23 @@ fn disparity_range(
     DisparityRange::new(min, max, width).map_err(OpError::invalid)
 }
 
+fn refine_params(params: &Params) -> Result<Option<RefineParams>, OpError> {
+    if params.string("refine")? == "none" {
+        return Ok(None);
+    }
+    let window = params.count("refine_window_px")?;
+    if window.is_multiple_of(2) {
+        return Err(OpError::invalid(format!(
+            "refine_window_px = {window}: must be odd"
+        )));
+    }
+    Ok(Some(RefineParams {
+        half_window: window / 2,
+        iterations: 5,
+        max_change_px: 1.0,
+    }))
+}
+
 fn select_params(params: &Params) -> Result<SelectParams, OpError> {
     let lr = params.float("lr_max_diff_px")?;
     Ok(SelectParams {
@@ -148,6 +177,15 @@ pub(crate) struct SgmOp(OpSpec);
 
 impl SgmOp {
     pub(crate) fn new() -> Self {
+        let d = SgmConfig::default();
+        let (width, height) = match d.cost {
+            MatchCost::Census { width, height } => (width, height),
+            MatchCost::BirchfieldTomasi { .. } => (9, 7),
+        };
+        let paths = match d.sgm.paths {
+            Paths::Four => 4,
+            Paths::Eight => 8,
+        };
         SgmOp(
             matcher_spec(
                 "stereo.sgm",
@@ -160,26 +198,26 @@ impl SgmOp {
                 "census: Hamming distance of census codes (robust to exposure, JPEG); bt: Birchfield-Tomasi grey difference",
             ))
             .param(
-                ParamSpec::int_list("census_window", &[9, 7], "px", "Census window width, height (odd; area <= 65)")
+                ParamSpec::int_list("census_window", &[width as i64, height as i64], "px", "Census window width, height (odd; area <= 65)")
                     .range(1.0, 65.0),
             )
             .param(
                 ParamSpec::int("bt_window", 5, "px", "Window the BT cost is averaged over (odd)")
                     .range(1.0, 31.0),
             )
-            .param(ParamSpec::int("paths", 8, "", "Aggregation paths: 4 or 8").range(4.0, 8.0))
+            .param(ParamSpec::int("paths", paths, "", "Aggregation paths: 4 or 8").range(4.0, 8.0))
             .param(
-                ParamSpec::int("p1", 8, "cost", "Penalty for a 1 px disparity step between neighbours")
+                ParamSpec::int("p1", d.sgm.p1 as i64, "cost", "Penalty for a 1 px disparity step between neighbours")
                     .range(1.0, 3999.0),
             )
             .param(
-                ParamSpec::int("p2", 80, "cost", "Penalty for a larger disparity jump (> p1)")
+                ParamSpec::int("p2", d.sgm.p2 as i64, "cost", "Penalty for a larger disparity jump (> p1)")
                     .range(2.0, 4000.0),
             )
             .param(
                 ParamSpec::float(
                     "p2_gamma",
-                    8.0,
+                    d.sgm.p2_gamma as f64,
                     "grey levels",
                     "P2 falls to P2 gamma / (gamma + |dI|) across an intensity step dI (0 = constant P2)",
                 )
@@ -188,7 +226,7 @@ impl SgmOp {
             .param(
                 ParamSpec::int(
                     "max_memory_mb",
-                    4096,
+                    d.max_memory_mb as i64,
                     "MB",
                     "Refuse when the cost volumes would need more memory than this",
                 )
@@ -239,7 +277,7 @@ impl Op for SgmOp {
             speckle_size_px: params.count("speckle_size_px")?,
             speckle_range_px: params.float("speckle_range_px")? as f32,
             max_memory_mb: params.count("max_memory_mb")?,
-            refine: None,
+            refine: refine_params(params)?,
         };
         let data = sgm_disparity(&left, &right, range, &config).map_err(OpError::invalid)?;
         disparity_output(data, left.width, left.height, range, ctx)
@@ -291,6 +329,9 @@ impl Op for BlockMatchOp {
             params.count("speckle_size_px")?,
             params.float("speckle_range_px")? as f32,
         );
+        if let Some(refine) = refine_params(params)? {
+            refine_disparity(&left, &right, &mut data, &refine);
+        }
         disparity_output(data, left.width, left.height, range, ctx)
     }
 }

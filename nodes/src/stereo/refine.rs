@@ -60,33 +60,39 @@ pub fn refine_disparity(
                 let mut d = d0;
                 let mut ok = true;
                 for _ in 0..params.iterations {
+                    // The window's first right sample and the interpolation
+                    // weight are the same on every row.
+                    let xs = x as f32 - d - r as f32;
+                    let x0f = xs.floor();
+                    if x0f < 0.0 || x0f + 2.0 * r as f32 + 1.0 >= (w - 1) as f32 {
+                        ok = false;
+                        break;
+                    }
+                    let (t, x0) = (xs - x0f, x0f as usize);
+                    let side = (2 * r + 1) as usize;
                     // Sums over the window of the residual, the gradient and
                     // their products, for the zero-mean normal equation.
                     let (mut sr, mut sg, mut sgg, mut sgr) = (0f32, 0f32, 0f32, 0f32);
                     for j in -r..=r {
-                        let yy = (y as isize + j) as usize;
-                        let base = yy * w;
-                        let xs = x as f32 - d;
-                        let x0f = (xs - r as f32).floor();
-                        if x0f < 0.0 || x0f + 2.0 * r as f32 + 1.0 >= (w - 1) as f32 {
-                            ok = false;
-                            break;
-                        }
-                        let t = xs - r as f32 - x0f;
-                        let x0 = x0f as usize;
-                        for i in 0..(2 * r + 1) as usize {
-                            let a = base + x0 + i;
-                            let ir = rf[a] + t * (rf[a + 1] - rf[a]);
-                            let g = gx[a] + t * (gx[a + 1] - gx[a]);
-                            let res = lf[base + x - r as usize + i] - ir;
+                        let base = (y as isize + j) as usize * w;
+                        let (r0, r1) = (
+                            &rf[base + x0..base + x0 + side],
+                            &rf[base + x0 + 1..base + x0 + 1 + side],
+                        );
+                        let (g0, g1) = (
+                            &gx[base + x0..base + x0 + side],
+                            &gx[base + x0 + 1..base + x0 + 1 + side],
+                        );
+                        let l = &lf[base + x - r as usize..base + x - r as usize + side];
+                        for i in 0..side {
+                            let ir = r0[i] + t * (r1[i] - r0[i]);
+                            let g = g0[i] + t * (g1[i] - g0[i]);
+                            let res = l[i] - ir;
                             sr += res;
                             sg += g;
                             sgg += g * g;
                             sgr += g * res;
                         }
-                    }
-                    if !ok {
-                        break;
                     }
                     let var_g = sgg - sg * sg / n;
                     if var_g < 1e-3 * n {
@@ -100,7 +106,7 @@ pub fn refine_disparity(
                         ok = false;
                         break;
                     }
-                    if delta.abs() < 1e-3 {
+                    if delta.abs() < 0.01 {
                         break;
                     }
                 }

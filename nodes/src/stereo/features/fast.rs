@@ -127,31 +127,57 @@ fn is_corner(level: &Level, x: i32, y: i32, t: f32) -> bool {
     has_run_of_9(b) || has_run_of_9(d)
 }
 
-/// Harris measure det(M) - 0.04 tr(M)^2 of Sobel gradients summed over the
-/// 7 x 7 window at (x, y); the caller keeps (x, y) 4 px inside.
+/// Harris measure det(M) - 0.04 tr(M)^2 of Sobel gradients over the 7 x 7
+/// window at (x, y), Gaussian-weighted (sigma 1.5 px: a flat window would put
+/// the peak of a right-angle corner two pixels inside it); the caller keeps
+/// (x, y) 4 px inside.
 fn harris(level: &Level, x: i32, y: i32) -> f32 {
+    static WEIGHTS: OnceLock<[f32; 49]> = OnceLock::new();
+    let weights = WEIGHTS.get_or_init(|| {
+        std::array::from_fn(|k| {
+            let (du, dv) = ((k % 7) as f32 - 3.0, (k / 7) as f32 - 3.0);
+            (-(du * du + dv * dv) / (2.0 * 1.5 * 1.5)).exp()
+        })
+    });
     let (mut a, mut b, mut c) = (0.0f32, 0.0f32, 0.0f32);
     for v in y - 3..=y + 3 {
         for u in x - 3..=x + 3 {
+            let wt = weights[((v - y + 3) * 7 + (u - x + 3)) as usize];
             let gx = (level.at(u + 1, v - 1) + 2.0 * level.at(u + 1, v) + level.at(u + 1, v + 1))
                 - (level.at(u - 1, v - 1) + 2.0 * level.at(u - 1, v) + level.at(u - 1, v + 1));
             let gy = (level.at(u - 1, v + 1) + 2.0 * level.at(u, v + 1) + level.at(u + 1, v + 1))
                 - (level.at(u - 1, v - 1) + 2.0 * level.at(u, v - 1) + level.at(u + 1, v - 1));
-            a += gx * gx;
-            b += gx * gy;
-            c += gy * gy;
+            a += wt * gx * gx;
+            b += wt * gx * gy;
+            c += wt * gy * gy;
         }
     }
     a * c - b * b - 0.04 * (a + c) * (a + c)
 }
 
-/// Peak offset (-0.5..0.5) of a parabola through three samples.
-fn parabola_peak(left: f32, centre: f32, right: f32) -> f32 {
-    let curvature = left - 2.0 * centre + right;
-    if curvature >= 0.0 {
-        return 0.0;
+/// Sub-pixel peak offset (each within -0.5..0.5) of the quadratic fitted to
+/// the 3 x 3 Harris values around a local maximum at (x, y); zero when the fit
+/// is not a maximum.
+fn quadratic_peak(level: &Level, x: i32, y: i32, centre: f32) -> (f32, f32) {
+    let v = |dx: i32, dy: i32| {
+        if (dx, dy) == (0, 0) {
+            centre
+        } else {
+            harris(level, x + dx, y + dy)
+        }
+    };
+    let gx = 0.5 * (v(1, 0) - v(-1, 0));
+    let gy = 0.5 * (v(0, 1) - v(0, -1));
+    let hxx = v(1, 0) - 2.0 * centre + v(-1, 0);
+    let hyy = v(0, 1) - 2.0 * centre + v(0, -1);
+    let hxy = 0.25 * (v(1, 1) - v(-1, 1) - v(1, -1) + v(-1, -1));
+    let det = hxx * hyy - hxy * hxy;
+    if !(hxx < 0.0 && det > 0.0) {
+        return (0.0, 0.0);
     }
-    (0.5 * (left - right) / curvature).clamp(-0.5, 0.5)
+    let ox = -(hyy * gx - hxy * gy) / det;
+    let oy = -(hxx * gy - hxy * gx) / det;
+    (ox.clamp(-0.5, 0.5), oy.clamp(-0.5, 0.5))
 }
 
 /// Corners of one level: FAST, Harris score, 3 x 3 non-maximum suppression
@@ -193,8 +219,7 @@ fn level_corners(level: &Level, t: f32) -> Vec<(i32, i32, f32, f32, f32)> {
                         }
                     }
                 }
-                let ox = parabola_peak(harris(level, x - 1, y), s, harris(level, x + 1, y));
-                let oy = parabola_peak(harris(level, x, y - 1), s, harris(level, x, y + 1));
+                let (ox, oy) = quadratic_peak(level, x, y, s);
                 Some((x, y, ox, oy, s))
             })
         })

@@ -9,6 +9,8 @@
 
 mod feature_ops;
 pub mod features;
+#[cfg(test)]
+mod features_eval;
 mod matching;
 mod range;
 mod triangulate;

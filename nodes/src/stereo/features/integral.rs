@@ -55,6 +55,17 @@ impl Integral {
         self.height
     }
 
+    /// The raw table, `(width + 1) * (height + 1)` values, row-major: entry
+    /// (x, y) is the sum of the pixels left of x and above y.
+    pub fn table(&self) -> &[f64] {
+        &self.table
+    }
+
+    /// Entries per table row (`width + 1`).
+    pub fn stride(&self) -> usize {
+        self.width + 1
+    }
+
     /// Sum of the pixels with `x0 <= x < x1`, `y0 <= y < y1`; the box is clipped
     /// to the image (pixels outside count as zero).
     #[inline]

@@ -7,6 +7,7 @@ use super::integral::Integral;
 use super::{Descriptors, Features, Keypoint, check_image, keep_strongest_spread};
 use rayon::prelude::*;
 use std::f64::consts::PI;
+use std::sync::OnceLock;
 
 /// Settings of the Fast-Hessian detector.
 #[derive(Debug, Clone, PartialEq)]
@@ -58,21 +59,69 @@ impl Layer {
         let b = (size - 1) / 2;
         let l = size / 3;
         let norm = 1.0 / (size * size) as f64;
+        // Each box as four signed table offsets from the entry of its centre
+        // pixel, with a weight: no clamping where the filter lies inside.
+        let stride = ii.stride() as i64;
+        let corners = |x0: i64, y0: i64, w: i64, h: i64| -> [i64; 4] {
+            [
+                (y0 + h) * stride + x0 + w,
+                y0 * stride + x0 + w,
+                (y0 + h) * stride + x0,
+                y0 * stride + x0,
+            ]
+        };
+        let dxx_boxes = [
+            (corners(-b, -l + 1, size, 2 * l - 1), 1.0),
+            (corners(-l / 2, -l + 1, l, 2 * l - 1), -3.0),
+        ];
+        let dyy_boxes = [
+            (corners(-l + 1, -b, 2 * l - 1, size), 1.0),
+            (corners(-l + 1, -l / 2, 2 * l - 1, l), -3.0),
+        ];
+        let dxy_boxes = [
+            (corners(1, -l, l, l), 1.0),
+            (corners(-l, 1, l, l), 1.0),
+            (corners(-l, -l, l, l), -1.0),
+            (corners(1, 1, l, l), -1.0),
+        ];
+        let table = ii.table();
+        let apply = |base: i64, boxes: &[([i64; 4], f64)]| -> f64 {
+            boxes
+                .iter()
+                .map(|(o, wt)| {
+                    let at = |k: usize| table[(base + o[k]) as usize];
+                    wt * (at(0) - at(1) - at(2) + at(3))
+                })
+                .sum()
+        };
+        let (w, h) = (ii.width() as i64, ii.height() as i64);
         response
             .par_chunks_mut(cols)
             .zip(laplacian_positive.par_chunks_mut(cols))
             .enumerate()
             .for_each(|(r, (resp, lap))| {
                 let y = r as i64 * step;
+                let inside_y = y >= b && y <= h - 1 - b;
                 for c in 0..cols {
                     let x = c as i64 * step;
-                    let dxx = ii.box_sum(x - b, y - l + 1, size, 2 * l - 1)
-                        - 3.0 * ii.box_sum(x - l / 2, y - l + 1, l, 2 * l - 1);
-                    let dyy = ii.box_sum(x - l + 1, y - b, 2 * l - 1, size)
-                        - 3.0 * ii.box_sum(x - l + 1, y - l / 2, 2 * l - 1, l);
-                    let dxy = ii.box_sum(x + 1, y - l, l, l) + ii.box_sum(x - l, y + 1, l, l)
-                        - ii.box_sum(x - l, y - l, l, l)
-                        - ii.box_sum(x + 1, y + 1, l, l);
+                    let (dxx, dyy, dxy) = if inside_y && x >= b && x <= w - 1 - b {
+                        let base = y * stride + x;
+                        (
+                            apply(base, &dxx_boxes),
+                            apply(base, &dyy_boxes),
+                            apply(base, &dxy_boxes),
+                        )
+                    } else {
+                        (
+                            ii.box_sum(x - b, y - l + 1, size, 2 * l - 1)
+                                - 3.0 * ii.box_sum(x - l / 2, y - l + 1, l, 2 * l - 1),
+                            ii.box_sum(x - l + 1, y - b, 2 * l - 1, size)
+                                - 3.0 * ii.box_sum(x - l + 1, y - l / 2, 2 * l - 1, l),
+                            ii.box_sum(x + 1, y - l, l, l) + ii.box_sum(x - l, y + 1, l, l)
+                                - ii.box_sum(x - l, y - l, l, l)
+                                - ii.box_sum(x + 1, y + 1, l, l),
+                        )
+                    };
                     let (dxx, dyy, dxy) = (dxx * norm, dyy * norm, dxy * norm);
                     resp[c] = (dxx * dyy - 0.81 * dxy * dxy) as f32;
                     lap[c] = dxx + dyy >= 0.0;
@@ -237,7 +286,14 @@ fn descriptor(ii: &Integral, kp: &Keypoint) -> [f32; 64] {
     let s = scale_of(kp);
     let side = haar_side(2.0 * s);
     let (sin, cos) = (kp.angle_rad as f64).sin_cos();
-    let sigma = 3.3 * s;
+    // Gaussian weights (sigma 3.3 s) in sample units, the same at every scale.
+    static WEIGHTS: OnceLock<[f64; 400]> = OnceLock::new();
+    let weights = WEIGHTS.get_or_init(|| {
+        std::array::from_fn(|i| {
+            let (u, v) = ((i % 20) as f64 - 9.5, (i / 20) as f64 - 9.5);
+            (-(u * u + v * v) / (2.0 * 3.3 * 3.3)).exp()
+        })
+    });
     let mut d = [0.0f64; 64];
     for k in 0..20 {
         for l in 0..20 {
@@ -245,7 +301,7 @@ fn descriptor(ii: &Integral, kp: &Keypoint) -> [f32; 64] {
             let v = (l as f64 - 9.5) * s;
             let x = (kp.x_px as f64 + u * cos - v * sin).round() as i64;
             let y = (kp.y_px as f64 + u * sin + v * cos).round() as i64;
-            let w = (-(u * u + v * v) / (2.0 * sigma * sigma)).exp();
+            let w = weights[l * 20 + k];
             let (dx, dy) = ii.haar(x, y, side);
             let rx = w * (dx * cos + dy * sin);
             let ry = w * (-dx * sin + dy * cos);

@@ -58,14 +58,44 @@ const PATCH_RADIUS: i32 = 15;
 /// Keypoints closer than this to a level's border are dropped (patch + rounding).
 const BORDER: i32 = PATCH_RADIUS + 2;
 
-/// One pyramid level: a grey image and its size.
+/// One pyramid level: a grey image, its size and its Sobel gradients (zero on
+/// the outermost pixels).
 struct Level {
     grey: Vec<f32>,
     width: usize,
     height: usize,
+    gx: Vec<f32>,
+    gy: Vec<f32>,
 }
 
 impl Level {
+    fn new(grey: Vec<f32>, width: usize, height: usize) -> Level {
+        let mut gx = vec![0.0f32; width * height];
+        let mut gy = vec![0.0f32; width * height];
+        if width >= 3 && height >= 3 {
+            gx.par_chunks_mut(width)
+                .zip(gy.par_chunks_mut(width))
+                .enumerate()
+                .filter(|(y, _)| *y >= 1 && *y + 1 < height)
+                .for_each(|(y, (rx, ry))| {
+                    let p = |u: usize, v: usize| grey[v * width + u];
+                    for u in 1..width - 1 {
+                        rx[u] = (p(u + 1, y - 1) + 2.0 * p(u + 1, y) + p(u + 1, y + 1))
+                            - (p(u - 1, y - 1) + 2.0 * p(u - 1, y) + p(u - 1, y + 1));
+                        ry[u] = (p(u - 1, y + 1) + 2.0 * p(u, y + 1) + p(u + 1, y + 1))
+                            - (p(u - 1, y - 1) + 2.0 * p(u, y - 1) + p(u + 1, y - 1));
+                    }
+                });
+        }
+        Level {
+            grey,
+            width,
+            height,
+            gx,
+            gy,
+        }
+    }
+
     #[inline]
     fn at(&self, x: i32, y: i32) -> f32 {
         self.grey[y as usize * self.width + x as usize]
@@ -85,11 +115,7 @@ impl Level {
                     + self.grey[(y + 1) * s + x + 1])
             })
             .collect();
-        Level {
-            grey,
-            width: w,
-            height: h,
-        }
+        Level::new(grey, w, h)
     }
 }
 
@@ -143,10 +169,8 @@ fn harris(level: &Level, x: i32, y: i32) -> f32 {
     for v in y - 3..=y + 3 {
         for u in x - 3..=x + 3 {
             let wt = weights[((v - y + 3) * 7 + (u - x + 3)) as usize];
-            let gx = (level.at(u + 1, v - 1) + 2.0 * level.at(u + 1, v) + level.at(u + 1, v + 1))
-                - (level.at(u - 1, v - 1) + 2.0 * level.at(u - 1, v) + level.at(u - 1, v + 1));
-            let gy = (level.at(u - 1, v + 1) + 2.0 * level.at(u, v + 1) + level.at(u + 1, v + 1))
-                - (level.at(u - 1, v - 1) + 2.0 * level.at(u, v - 1) + level.at(u + 1, v - 1));
+            let k = v as usize * level.width + u as usize;
+            let (gx, gy) = (level.gx[k], level.gy[k]);
             a += wt * gx * gx;
             b += wt * gx * gy;
             c += wt * gy * gy;
@@ -331,11 +355,7 @@ pub fn detect_fast(
     if !(params.threshold.is_finite() && params.threshold > 0.0) {
         return Err(format!("fast threshold {} must be > 0", params.threshold));
     }
-    let mut levels = vec![Level {
-        grey: grey.to_vec(),
-        width,
-        height,
-    }];
+    let mut levels = vec![Level::new(grey.to_vec(), width, height)];
     while levels.len() < params.octaves {
         let next = levels[levels.len() - 1].half();
         if next.width <= 2 * BORDER as usize || next.height <= 2 * BORDER as usize {
@@ -449,11 +469,7 @@ mod tests {
         let img: Vec<f32> = (0..w * h)
             .map(|i| 0.01 * ((i % w) + (i / w)) as f32)
             .collect();
-        let level = Level {
-            grey: img,
-            width: w,
-            height: h,
-        };
+        let level = Level::new(img, w, h);
         let a = centroid_angle(&level, 20, 20);
         assert!((a - std::f32::consts::FRAC_PI_4).abs() < 1e-3, "{a}");
     }

@@ -58,9 +58,8 @@ pub fn disparity_range(disparities_px: &[f32], params: &RangeParams) -> Result<(
             "percentiles {lo} and {hi}: need 0 <= low_percentile < high_percentile <= 100"
         ));
     }
-    if !(params.margin_px.is_finite() && params.margin_px >= 0.0)
-        || !(params.margin_fraction.is_finite() && params.margin_fraction >= 0.0)
-    {
+    let non_negative = |v: f64| v.is_finite() && v >= 0.0;
+    if !non_negative(params.margin_px) || !non_negative(params.margin_fraction) {
         return Err("margin_px and margin_fraction must be >= 0".into());
     }
     let mut d: Vec<f64> = disparities_px

@@ -7,38 +7,46 @@
 //! at pixel centres, OpenCV); disparity is `x_left - x_right` in px; 3D points
 //! are in mm in the original (unrectified) left camera frame `camera_left`.
 
+mod blobs;
 mod block_match;
 mod cost;
 mod dense;
 mod dense_ops;
+mod feature_ops;
+pub mod features;
+#[cfg(test)]
+mod features_eval;
 mod filter;
+mod hsv_markers;
+mod markers_op;
+mod matching;
 mod pair;
+mod range;
 mod refine;
 mod select;
 mod sgm;
 mod simd;
 mod triangulate;
 
+pub use blobs::{MomentEllipse, components, dilate, ellipse_fit, erode, open_close, soft_centroid};
 pub use block_match::{BlockCost, block_match};
 pub use cost::{CostVolume, bt_costs, census_costs, census_transform};
 pub use dense::{MatchCost, SgmConfig, sgm_disparity};
 pub use dense_ops::triangulate_disparity;
+pub use feature_ops::{features_from_table, features_to_table};
 pub use filter::filter_speckles;
-pub use pair::{DisparityRange, GreyImage, check_pair};
-pub use refine::{RefineParams, refine_disparity};
-pub use select::{SelectParams, select};
-pub use sgm::{Aggregated, Paths, SgmParams, aggregate};
-pub use simd::Isa;
-mod blobs;
-mod hsv_markers;
-mod markers_op;
-
-pub use blobs::{MomentEllipse, components, dilate, ellipse_fit, erode, open_close, soft_centroid};
 pub use hsv_markers::{
     Blob, BlobParams, PairParams, StereoMarker, StereoMarkers, find_blobs, hsv, hue_score,
     pair_blobs, stereo_markers,
 };
 pub use markers_op::BLOB_COLUMNS;
+pub use matching::{FeatureMatch, MatchParams, match_features};
+pub use pair::{DisparityRange, GreyImage, check_pair};
+pub use range::{RangeParams, disparity_range, percentile};
+pub use refine::{RefineParams, refine_disparity};
+pub use select::{SelectParams, select};
+pub use sgm::{Aggregated, Paths, SgmParams, aggregate};
+pub use simd::Isa;
 pub use triangulate::point_from_disparity;
 
 use fusegraph_engine::Registry;
@@ -51,5 +59,8 @@ pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.register(Arc::new(dense_ops::BlockMatchOp::new()))?;
     registry.register(Arc::new(dense_ops::TriangulateOp::new()))?;
     registry.register(Arc::new(markers_op::HsvMarkersOp::new()))?;
+    registry.register(Arc::new(feature_ops::FeaturesOp::new()))?;
+    registry.register(Arc::new(feature_ops::MatchFeaturesOp::new()))?;
+    registry.register(Arc::new(feature_ops::DisparityRangeOp::new()))?;
     Ok(())
 }

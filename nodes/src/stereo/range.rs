@@ -1,0 +1,154 @@
+//! The disparity range a dense matcher searches, from sparse matches (the
+//! paper sets it from SURF matches): robust percentiles of the matched
+//! disparities widened by a margin.
+//!
+//! Percentiles drop the few wrong matches but also the true extremes, and
+//! surfaces with little texture (often the nearest or farthest) get few
+//! features; so the margin has a fixed part (`margin_px`, covering the tails a
+//! handful of matches cannot show) and a part proportional to the spread
+//! (`margin_fraction`, because a scene twice as deep in disparity has tails
+//! twice as long). Range = [p_low - m, p_high + m], m = margin_px +
+//! margin_fraction * (p_high - p_low), rounded outwards to whole pixels.
+
+/// Settings of [`disparity_range`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct RangeParams {
+    /// Lower percentile of the matched disparities, % (0..100).
+    pub low_percentile: f64,
+    /// Upper percentile, %; above `low_percentile`.
+    pub high_percentile: f64,
+    /// Fixed margin added on both sides, px.
+    pub margin_px: f64,
+    /// Margin added on both sides as a fraction of the percentile spread.
+    pub margin_fraction: f64,
+    /// Fewest matches to trust; fewer is an error.
+    pub min_matches: usize,
+}
+
+impl Default for RangeParams {
+    fn default() -> Self {
+        RangeParams {
+            low_percentile: 2.0,
+            high_percentile: 98.0,
+            margin_px: 8.0,
+            margin_fraction: 0.1,
+            min_matches: 10,
+        }
+    }
+}
+
+/// Percentile `p` (0..100) of ascending `sorted` values, linearly interpolated
+/// between ranks; `sorted` must not be empty.
+pub fn percentile(sorted: &[f64], p: f64) -> f64 {
+    let pos = (p / 100.0).clamp(0.0, 1.0) * (sorted.len() - 1) as f64;
+    let (i, frac) = (pos.floor() as usize, pos - pos.floor());
+    match sorted.get(i + 1) {
+        Some(next) => sorted[i] + frac * (next - sorted[i]),
+        None => sorted[i],
+    }
+}
+
+/// The smallest and largest disparity (px, whole pixels, min <= max) a dense
+/// matcher should search, from matched disparities (`x_left - x_right`, px).
+/// Non-finite disparities are ignored; fewer than `min_matches` left is an error.
+pub fn disparity_range(disparities_px: &[f32], params: &RangeParams) -> Result<(i32, i32), String> {
+    let (lo, hi) = (params.low_percentile, params.high_percentile);
+    if !(0.0..=100.0).contains(&lo) || !(0.0..=100.0).contains(&hi) || lo >= hi {
+        return Err(format!(
+            "percentiles {lo} and {hi}: need 0 <= low_percentile < high_percentile <= 100"
+        ));
+    }
+    let non_negative = |v: f64| v.is_finite() && v >= 0.0;
+    if !non_negative(params.margin_px) || !non_negative(params.margin_fraction) {
+        return Err("margin_px and margin_fraction must be >= 0".into());
+    }
+    let mut d: Vec<f64> = disparities_px
+        .iter()
+        .filter(|v| v.is_finite())
+        .map(|&v| v as f64)
+        .collect();
+    if d.len() < params.min_matches.max(1) {
+        return Err(format!(
+            "only {} matches (min_matches = {}): too few to bound the disparity range; \
+             set the dense matcher's disparity range by its parameters instead",
+            d.len(),
+            params.min_matches
+        ));
+    }
+    d.sort_by(f64::total_cmp);
+    let (p_lo, p_hi) = (percentile(&d, lo), percentile(&d, hi));
+    let margin = params.margin_px + params.margin_fraction * (p_hi - p_lo);
+    let (min, max) = ((p_lo - margin).floor(), (p_hi + margin).ceil());
+    if min < i32::MIN as f64 || max > i32::MAX as f64 {
+        return Err(format!(
+            "disparity range [{min}, {max}] px is out of bounds"
+        ));
+    }
+    Ok((min as i32, max as i32))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn percentiles_interpolate_between_ranks() {
+        let v = [0.0, 10.0, 20.0, 30.0, 40.0];
+        assert_eq!(percentile(&v, 0.0), 0.0);
+        assert_eq!(percentile(&v, 50.0), 20.0);
+        assert_eq!(percentile(&v, 100.0), 40.0);
+        assert!((percentile(&v, 10.0) - 4.0).abs() < 1e-12);
+        assert_eq!(percentile(&[7.0], 98.0), 7.0);
+    }
+
+    #[test]
+    fn range_by_hand() {
+        // 0, 1, ..., 100: p2 = 2, p98 = 98, margin = 8 + 0.1 * 96 = 17.6.
+        let d: Vec<f32> = (0..=100).map(|v| v as f32).collect();
+        let (min, max) = disparity_range(&d, &RangeParams::default()).unwrap();
+        assert_eq!((min, max), (-16, 116));
+    }
+
+    #[test]
+    fn wrong_matches_do_not_stretch_the_range() {
+        // 500 matches on two surfaces (20..30 px and 45..60 px) plus 1 % wild
+        // outliers: the range covers both surfaces and ignores the outliers.
+        let mut d: Vec<f32> = (0..250).map(|i| 20.0 + 10.0 * i as f32 / 249.0).collect();
+        d.extend((0..250).map(|i| 45.0 + 15.0 * i as f32 / 249.0));
+        d.extend([-300.0, 400.0, 900.0, -50.0, 1000.0]);
+        let (min, max) = disparity_range(&d, &RangeParams::default()).unwrap();
+        assert!(min <= 20 && max >= 60, "[{min}, {max}]");
+        assert!(
+            min >= 20 - 8 - 5 && max <= 60 + 8 + 5,
+            "[{min}, {max}] too wide"
+        );
+    }
+
+    #[test]
+    fn a_wide_pair_gets_a_wide_range() {
+        // 200 .. 260 px, uniform.
+        let d: Vec<f32> = (0..300).map(|i| 200.0 + 60.0 * i as f32 / 299.0).collect();
+        let (min, max) = disparity_range(&d, &RangeParams::default()).unwrap();
+        assert!(min <= 200 && max >= 260, "[{min}, {max}]");
+        assert!(min >= 180 && max <= 280, "[{min}, {max}]");
+    }
+
+    #[test]
+    fn too_few_matches_or_bad_params_are_errors() {
+        let err = disparity_range(&[1.0, 2.0, f32::NAN], &RangeParams::default()).unwrap_err();
+        assert!(err.contains("only 2 matches"), "{err}");
+        assert!(err.contains("parameters"), "{err}");
+        let p = RangeParams {
+            low_percentile: 90.0,
+            high_percentile: 10.0,
+            ..RangeParams::default()
+        };
+        let d: Vec<f32> = (0..20).map(|v| v as f32).collect();
+        assert!(disparity_range(&d, &p).is_err());
+        let p = RangeParams {
+            min_matches: 0,
+            ..RangeParams::default()
+        };
+        assert!(disparity_range(&[], &p).is_err(), "no disparity at all");
+    }
+}

@@ -7,6 +7,8 @@ use super::pair::{DisparityRange, GreyImage, check_pair};
 use super::refine::{RefineParams, refine_disparity};
 use super::select::{SelectParams, select};
 use super::sgm::{SgmParams, aggregate};
+use super::texture::{flat_windows, noise_sigma};
+use rayon::prelude::*;
 
 /// The pixel matching cost semi-global matching aggregates.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -36,8 +38,10 @@ pub struct SgmConfig {
     pub sgm: SgmParams,
     /// Winner selection.
     pub select: SelectParams,
-    /// Largest speckle removed, px (0 = none).
-    pub speckle_size_px: usize,
+    /// Largest speckle removed, as a share of the image area, % (0 = none):
+    /// speckles scale with the resolution, so a pixel count would not carry
+    /// from one camera to another.
+    pub speckle_area_pct: f64,
     /// Largest disparity step inside one speckle region, px.
     pub speckle_range_px: f32,
     /// Refuse to run when the cost volumes would need more memory than this, MB.
@@ -45,6 +49,15 @@ pub struct SgmConfig {
     /// Sub-pixel refinement on the intensities after selection (`None` keeps
     /// the cost parabola's sub-pixel values).
     pub refine: Option<RefineParams>,
+    /// Invalidate a pixel whose own matching cost at the chosen disparity is
+    /// above this fraction of the largest cost (0..1; 1 = off). Two unrelated
+    /// census codes differ in about half their bits, so a winner costing that
+    /// much was carried in by the smoothness terms from elsewhere: no texture
+    /// of its own (a blank background, glare) supports it.
+    pub max_cost_fraction: f32,
+    /// Invalidate pixels whose census window's grey-level spread is below this
+    /// multiple of the image's own noise level (no texture to match; 0 = off).
+    pub min_texture_snr: f64,
 }
 
 impl Default for SgmConfig {
@@ -52,7 +65,9 @@ impl Default for SgmConfig {
     /// P1 = 8 and P2 = 80 bits (P2 about a wrong match's cost, so a jump needs
     /// evidence from several pixels) falling at intensity edges (gamma 8 grey
     /// levels), OpenCV's uniqueness (10 %), left-right (1 px) and speckle
-    /// (100 px, 2 px) settings, and intensity refinement over 9 x 9 windows.
+    /// (2 px) settings with speckles up to 0.08 % of the image (OpenCV's
+    /// usual 100-400 px at 640 x 480 to 800 x 600), a texture test at twice the
+    /// image noise, and intensity refinement over 9 x 9 windows.
     fn default() -> Self {
         SgmConfig {
             cost: MatchCost::Census {
@@ -70,7 +85,7 @@ impl Default for SgmConfig {
                 lr_max_diff_px: Some(1.0),
                 subpixel: true,
             },
-            speckle_size_px: 100,
+            speckle_area_pct: 0.08,
             speckle_range_px: 2.0,
             max_memory_mb: 4096,
             refine: Some(RefineParams {
@@ -78,8 +93,19 @@ impl Default for SgmConfig {
                 iterations: 5,
                 max_change_px: 1.0,
             }),
+            max_cost_fraction: 1.0,
+            min_texture_snr: 2.0,
         }
     }
+}
+
+/// The largest speckle, px, for `area_pct` % of a `w x h` image (at least one
+/// pixel when not 0).
+pub fn speckle_size_px(area_pct: f64, w: usize, h: usize) -> usize {
+    if area_pct <= 0.0 {
+        return 0;
+    }
+    ((area_pct / 100.0 * (w * h) as f64).round() as usize).max(1)
 }
 
 /// Bytes per cost cell: the 8-bit cost and two 16-bit pass sums.
@@ -122,7 +148,6 @@ pub fn sgm_disparity(
     let t1 = std::time::Instant::now();
     let aggregated = aggregate(&volume, &config.sgm, Some(left));
     let t2 = std::time::Instant::now();
-    drop(volume);
     let mut disparity = select(
         w,
         h,
@@ -130,12 +155,23 @@ pub fn sgm_disparity(
         |y, out: &mut Vec<u16>| aggregated.total_row(y, out),
         &config.select,
     );
+    drop(aggregated);
+    if config.max_cost_fraction < 1.0 {
+        let limit = config.max_cost_fraction * volume.max_cost as f32;
+        disparity.par_iter_mut().enumerate().for_each(|(i, d)| {
+            let k = (d.round() as i64 - range.min_px as i64).clamp(0, range.count as i64 - 1);
+            if !d.is_nan() && volume.pixel(i % w, i / w)[k as usize] as f32 > limit {
+                *d = f32::NAN;
+            }
+        });
+    }
+    drop(volume);
     let t3 = std::time::Instant::now();
     filter_speckles(
         &mut disparity,
         w,
         h,
-        config.speckle_size_px,
+        speckle_size_px(config.speckle_area_pct, w, h),
         config.speckle_range_px,
     );
     let t4 = std::time::Instant::now();
@@ -218,10 +254,12 @@ mod tests {
                 lr_max_diff_px: Some(1.0),
                 subpixel,
             },
-            speckle_size_px: 20,
+            speckle_area_pct: 0.35,
             speckle_range_px: 1.0,
             max_memory_mb: 1024,
             refine: None,
+            max_cost_fraction: 1.0,
+            min_texture_snr: 0.0,
         }
     }
 

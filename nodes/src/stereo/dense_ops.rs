@@ -2,7 +2,7 @@
 //! `stereo.block_match`, `stereo.triangulate`.
 
 use super::block_match::{BlockCost, block_match};
-use super::dense::{MatchCost, SgmConfig, sgm_disparity};
+use super::dense::{MatchCost, SgmConfig, sgm_disparity, speckle_size_px};
 use super::filter::filter_speckles;
 use super::pair::{DisparityRange, GreyImage, check_pair};
 use super::refine::{RefineParams, refine_disparity};
@@ -75,13 +75,13 @@ fn matcher_spec(name: &str, version: u32, doc: &str) -> OpSpec {
                 .range(3.0, 31.0),
         )
         .param(
-            ParamSpec::int(
-                "speckle_size_px",
-                d.speckle_size_px as i64,
-                "px",
-                "Remove regions of similar disparity this small or smaller (0 = off)",
+            ParamSpec::float(
+                "speckle_area_pct",
+                d.speckle_area_pct,
+                "%",
+                "Remove regions of similar disparity up to this share of the image area (0 = off)",
             )
-            .at_least(0.0),
+            .range(0.0, 100.0),
         )
         .param(
             ParamSpec::float(
@@ -189,7 +189,7 @@ impl SgmOp {
         SgmOp(
             matcher_spec(
                 "stereo.sgm",
-                1,
+                3,
                 "Semi-global matching (census or Birchfield-Tomasi costs, 4 or 8 paths) -> Disparity",
             )
             .param(ParamSpec::choice(
@@ -220,6 +220,24 @@ impl SgmOp {
                     d.sgm.p2_gamma as f64,
                     "grey levels",
                     "P2 falls to P2 gamma / (gamma + |dI|) across an intensity step dI (0 = constant P2)",
+                )
+                .at_least(0.0),
+            )
+            .param(
+                ParamSpec::float(
+                    "max_cost_fraction",
+                    d.max_cost_fraction as f64,
+                    "",
+                    "Invalid where the pixel's own cost at its disparity exceeds this fraction of the largest cost (no texture supports it; 1 = off)",
+                )
+                .range(0.0, 1.0),
+            )
+            .param(
+                ParamSpec::float(
+                    "min_texture_snr",
+                    d.min_texture_snr,
+                    "",
+                    "Invalid where the cost window's grey-level spread is below this multiple of the image noise (estimated from the image; 0 = off)",
                 )
                 .at_least(0.0),
             )
@@ -274,10 +292,12 @@ impl Op for SgmOp {
                 p2_gamma: params.float("p2_gamma")? as f32,
             },
             select: select_params(params)?,
-            speckle_size_px: params.count("speckle_size_px")?,
+            speckle_area_pct: params.float("speckle_area_pct")?,
             speckle_range_px: params.float("speckle_range_px")? as f32,
             max_memory_mb: params.count("max_memory_mb")?,
             refine: refine_params(params)?,
+            max_cost_fraction: params.float("max_cost_fraction")? as f32,
+            min_texture_snr: params.float("min_texture_snr")?,
         };
         let data = sgm_disparity(&left, &right, range, &config).map_err(OpError::invalid)?;
         disparity_output(data, left.width, left.height, range, ctx)
@@ -291,7 +311,7 @@ impl BlockMatchOp {
         BlockMatchOp(
             matcher_spec(
                 "stereo.block_match",
-                1,
+                3,
                 "Local block matching (SAD, ZNCC or census over a window) -> Disparity",
             )
             .param(ParamSpec::choice(
@@ -326,7 +346,7 @@ impl Op for BlockMatchOp {
             &mut data,
             left.width,
             left.height,
-            params.count("speckle_size_px")?,
+            speckle_size_px(params.float("speckle_area_pct")?, left.width, left.height),
             params.float("speckle_range_px")? as f32,
         );
         if let Some(refine) = refine_params(params)? {

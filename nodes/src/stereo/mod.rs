@@ -26,12 +26,13 @@ mod refine;
 mod select;
 mod sgm;
 mod simd;
+mod texture;
 mod triangulate;
 
 pub use blobs::{MomentEllipse, components, dilate, ellipse_fit, erode, open_close, soft_centroid};
 pub use block_match::{BlockCost, block_match};
 pub use cost::{CostVolume, bt_costs, census_costs, census_transform};
-pub use dense::{MatchCost, SgmConfig, sgm_disparity};
+pub use dense::{MatchCost, SgmConfig, sgm_disparity, speckle_size_px};
 pub use dense_ops::triangulate_disparity;
 pub use feature_ops::{features_from_table, features_to_table};
 pub use filter::filter_speckles;
@@ -47,6 +48,7 @@ pub use refine::{RefineParams, refine_disparity};
 pub use select::{SelectParams, select};
 pub use sgm::{Aggregated, Paths, SgmParams, aggregate};
 pub use simd::Isa;
+pub use texture::{flat_windows, noise_sigma};
 pub use triangulate::point_from_disparity;
 
 use fusegraph_engine::Registry;

@@ -9,6 +9,10 @@
 //! (`margin_fraction`, because a scene twice as deep in disparity has tails
 //! twice as long). Range = [p_low - m, p_high + m], m = margin_px +
 //! margin_fraction * (p_high - p_low), rounded outwards to whole pixels.
+//! The fixed part is 16 px by default: a search that stops short of a surface
+//! (the far edge of a table, say) forces its pixels to wrong disparities inside
+//! the range, which triangulate to points floating in front of it, while 32
+//! more disparities cost a dense matcher little.
 
 /// Settings of [`disparity_range`].
 #[derive(Debug, Clone, PartialEq)]
@@ -30,7 +34,7 @@ impl Default for RangeParams {
         RangeParams {
             low_percentile: 2.0,
             high_percentile: 98.0,
-            margin_px: 8.0,
+            margin_px: 16.0,
             margin_fraction: 0.1,
             min_matches: 10,
         }
@@ -103,10 +107,10 @@ mod tests {
 
     #[test]
     fn range_by_hand() {
-        // 0, 1, ..., 100: p2 = 2, p98 = 98, margin = 8 + 0.1 * 96 = 17.6.
+        // 0, 1, ..., 100: p2 = 2, p98 = 98, margin = 16 + 0.1 * 96 = 25.6.
         let d: Vec<f32> = (0..=100).map(|v| v as f32).collect();
         let (min, max) = disparity_range(&d, &RangeParams::default()).unwrap();
-        assert_eq!((min, max), (-16, 116));
+        assert_eq!((min, max), (-24, 124));
     }
 
     #[test]
@@ -119,7 +123,7 @@ mod tests {
         let (min, max) = disparity_range(&d, &RangeParams::default()).unwrap();
         assert!(min <= 20 && max >= 60, "[{min}, {max}]");
         assert!(
-            min >= 20 - 8 - 5 && max <= 60 + 8 + 5,
+            min >= 20 - 16 - 5 && max <= 60 + 16 + 5,
             "[{min}, {max}] too wide"
         );
     }
@@ -130,7 +134,8 @@ mod tests {
         let d: Vec<f32> = (0..300).map(|i| 200.0 + 60.0 * i as f32 / 299.0).collect();
         let (min, max) = disparity_range(&d, &RangeParams::default()).unwrap();
         assert!(min <= 200 && max >= 260, "[{min}, {max}]");
-        assert!(min >= 180 && max <= 280, "[{min}, {max}]");
+        // Margin 16 + 0.1 * 60 = 22 on each side, and no more.
+        assert!(min >= 176 && max <= 284, "[{min}, {max}]");
     }
 
     #[test]

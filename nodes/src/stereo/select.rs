@@ -92,6 +92,11 @@ fn select_row<T: Cost>(
         if k < k_lo || k >= k_hi {
             continue; // no possible match at all
         }
+        // A winner on the edge of the search range is most likely a disparity
+        // beyond it (far background, a too narrow range): not a match.
+        if n > 2 && (k == 0 || k == n - 1) {
+            continue;
+        }
         if u > 0.0 {
             // The cheapest disparity more than one step away.
             let runner_up = lowest(&c[..k.saturating_sub(1)])
@@ -172,18 +177,19 @@ mod tests {
             ..plain
         };
         assert!(run(&costs, 6, range, strict)[5].is_nan());
-        // Pixel 0 can only have d = 0 (x - d >= 0).
-        assert_eq!(run(&costs, 6, range, plain)[0], 0.0);
+        // A winner on the edge of the range is refused.
+        costs[8..12].copy_from_slice(&[9, 8, 7, 1]);
+        assert!(run(&costs, 6, range, plain)[2].is_nan());
     }
 
     #[test]
     fn left_right_check_rejects_a_pixel_the_right_image_gives_elsewhere() {
-        let range = DisparityRange::new(0, 2, 5).unwrap();
+        let range = DisparityRange::new(0, 3, 5).unwrap();
         // Pixels 3 and 4 both claim right pixel 2 (d = 1 and d = 2); pixel 4's
         // match is cheaper, so pixel 3 fails the check.
-        let mut costs = vec![9u16; 5 * 3];
-        costs[3 * 3..4 * 3].copy_from_slice(&[9, 3, 9]);
-        costs[4 * 3..5 * 3].copy_from_slice(&[9, 9, 1]);
+        let mut costs = vec![9u16; 5 * 4];
+        costs[3 * 4..4 * 4].copy_from_slice(&[9, 3, 9, 9]);
+        costs[4 * 4..5 * 4].copy_from_slice(&[9, 9, 1, 9]);
         let p = SelectParams {
             uniqueness_pct: 0.0,
             lr_max_diff_px: Some(0.0),

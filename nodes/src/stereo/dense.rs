@@ -166,6 +166,18 @@ pub fn sgm_disparity(
         });
     }
     drop(volume);
+    if config.min_texture_snr > 0.0 {
+        let (ww, wh) = match config.cost {
+            MatchCost::Census { width, height } => (width, height),
+            MatchCost::BirchfieldTomasi { window } => (window, window),
+        };
+        let flat = flat_windows(left, ww, wh, config.min_texture_snr * noise_sigma(left));
+        for (d, f) in disparity.iter_mut().zip(flat) {
+            if f {
+                *d = f32::NAN;
+            }
+        }
+    }
     let t3 = std::time::Instant::now();
     filter_speckles(
         &mut disparity,

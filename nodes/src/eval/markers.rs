@@ -68,33 +68,41 @@ pub fn compare_markers(
 /// The true marker centres (mm) that markers found in `frame` are compared
 /// with. `reference` `mri_gel`: gel cores, for markers in `mri_lps`;
 /// `world_gel` / `world_face`: gel cores / coloured face centres, for markers in
-/// `world` (every marker) or `camera_left` (the left camera of view `view`, and
-/// only the markers visible in both of its images: those a stereo rig can
-/// find). Any other pairing is an error naming the frame.
+/// `world` or `camera_left` (the left camera of view `view`). Each centre comes
+/// with whether it is expected to be found: always, except in `camera_left`,
+/// where only markers whose face is visible in both images of the view are (a
+/// partly hidden one that is found anyway is matched, not spurious). Any other
+/// pairing is an error naming the frame.
 pub fn true_marker_centres(
     truth: &GroundTruth,
     reference: &str,
     frame: &str,
     view: usize,
-) -> Result<Vec<[f64; 3]>, String> {
+) -> Result<Vec<([f64; 3], bool)>, String> {
     let centre = |m: &MarkerTruth| match reference {
         "world_face" => m.face_center_world_mm,
         _ => m.center_world_mm,
     };
     match (reference, frame) {
-        ("mri_gel", "mri_lps") => Ok(truth.markers.iter().map(|m| m.center_mri_mm).collect()),
-        ("world_gel" | "world_face", "world") => Ok(truth.markers.iter().map(centre).collect()),
+        ("mri_gel", "mri_lps") => Ok(truth
+            .markers
+            .iter()
+            .map(|m| (m.center_mri_mm, true))
+            .collect()),
+        ("world_gel" | "world_face", "world") => {
+            Ok(truth.markers.iter().map(|m| (centre(m), true)).collect())
+        }
         ("world_gel" | "world_face", "camera_left") => {
             let world_to_camera = frame_to_world(truth, frame, view)?.inverse();
             let v = &truth.views[view];
             Ok(truth
                 .markers
                 .iter()
-                .filter(|m| {
-                    v.markers_visible_left.contains(&m.id)
-                        && v.markers_visible_right.contains(&m.id)
+                .map(|m| {
+                    let seen = v.markers_visible_left.contains(&m.id)
+                        && v.markers_visible_right.contains(&m.id);
+                    ((world_to_camera * Point3::from(centre(m))).into(), seen)
                 })
-                .map(|m| (world_to_camera * Point3::from(centre(m))).into())
                 .collect())
         }
         ("mri_gel", _) => Err(format!(
@@ -129,9 +137,12 @@ mod tests {
         let truth = crate::eval::frames::test_truth();
         let pose = crate::camera::isometry_from_matrix(&truth.views[0].left_camera_to_world);
         let faces = true_marker_centres(&truth, "world_face", "camera_left", 0).unwrap();
-        // Markers 1, 2, 3 are visible in both images of the test view.
-        assert_eq!(faces.len(), 3);
-        for (c, m) in faces.iter().zip(&truth.markers[1..4]) {
+        // Every marker is there; markers 1, 2, 3 are visible in both images of
+        // the test view, so only they are expected.
+        assert_eq!(faces.len(), truth.markers.len());
+        let expected: Vec<usize> = (0..faces.len()).filter(|&i| faces[i].1).collect();
+        assert_eq!(expected, [1, 2, 3]);
+        for ((c, _), m) in faces.iter().zip(&truth.markers) {
             let back = pose * Point3::from(*c);
             assert!((back - Point3::from(m.face_center_world_mm)).norm() < 1e-9);
         }
@@ -139,7 +150,7 @@ mod tests {
         let gels = true_marker_centres(&truth, "world_gel", "camera_left", 0).unwrap();
         let m = &truth.markers[1];
         let depth = (Point3::from(m.face_center_world_mm) - Point3::from(m.center_world_mm)).norm();
-        assert!(((Point3::from(faces[0]) - Point3::from(gels[0])).norm() - depth).abs() < 1e-9);
+        assert!(((Point3::from(faces[1].0) - Point3::from(gels[1].0)).norm() - depth).abs() < 1e-9);
         assert!(depth > 0.5);
         assert_eq!(
             true_marker_centres(&truth, "world_gel", "world", 0)

@@ -22,7 +22,7 @@ impl EvalMarkersOp {
         EvalMarkersOp(
             OpSpec::new(
                 "eval.markers",
-                2,
+                3,
                 "Found marker centres against the phantom's true ones (no assumed order)",
             )
             .input(
@@ -76,10 +76,16 @@ impl Op for EvalMarkersOp {
             .chunks(3)
             .map(|c| [c[0], c[1], c[2]])
             .collect();
-        let c = compare_markers(&found, &centres, params.float("max_distance_mm")?);
-        ctx.metric("expected", centres.len() as f64);
+        let points: Vec<[f64; 3]> = centres.iter().map(|c| c.0).collect();
+        let c = compare_markers(&found, &points, params.float("max_distance_mm")?);
+        let missed = centres
+            .iter()
+            .enumerate()
+            .filter(|(j, t)| t.1 && !c.pairs.iter().any(|p| p.1 == *j))
+            .count();
+        ctx.metric("expected", centres.iter().filter(|c| c.1).count() as f64);
         ctx.metric("found", c.pairs.len() as f64);
-        ctx.metric("missed", c.missed as f64);
+        ctx.metric("missed", missed as f64);
         ctx.metric("spurious", c.spurious as f64);
         ctx.metric("mean_error_mm", c.mean_error_mm());
         ctx.metric("max_error_mm", c.max_error_mm());

@@ -46,7 +46,8 @@ pub struct BlobParams {
     /// Largest blob area, px.
     pub max_area_px: f64,
     /// Largest ratio of the moment ellipse's axes (a disc tilted by t shows
-    /// 1 / cos t: 2 at 60 deg).
+    /// 1 / cos t: 2 at 60 deg, 6 at 80 deg: markers near the silhouette are
+    /// still markers).
     pub max_aspect: f64,
     /// Smallest [`ellipse_fit`] (intersection over union of the blob and its
     /// moment ellipse).
@@ -67,7 +68,7 @@ impl Default for BlobParams {
             morph_radius_px: 1,
             min_area_px: 20.0,
             max_area_px: 20000.0,
-            max_aspect: 3.0,
+            max_aspect: 6.0,
             min_ellipse_fit: 0.8,
             border_px: 2,
         }

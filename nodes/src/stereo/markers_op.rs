@@ -21,10 +21,11 @@ pub(crate) struct HsvMarkersOp(OpSpec);
 
 impl HsvMarkersOp {
     pub(crate) fn new() -> Self {
+        let b = BlobParams::default();
         HsvMarkersOp(
             OpSpec::new(
                 "stereo.hsv_markers",
-                1,
+                2,
                 "Coloured markers found by HSV thresholds in both rectified images, paired along rows, triangulated",
             )
             .input("left", &[ValueType::Image], "Left rectified image, 8-bit RGB")
@@ -39,41 +40,41 @@ impl HsvMarkersOp {
             .param(
                 ParamSpec::float_list(
                     "hue_deg",
-                    &[90.0, 170.0],
+                    &[b.hue_deg.0, b.hue_deg.1],
                     "deg",
                     "Hue range [min, max]; min > max wraps through 0 (default: the phantom's green)",
                 )
                 .range(0.0, 360.0),
             )
             .param(
-                ParamSpec::float("min_saturation", 0.45, "", "Smallest saturation (0..1)")
+                ParamSpec::float("min_saturation", b.min_saturation, "", "Smallest saturation (0..1)")
                     .range(0.0, 1.0),
             )
             .param(
-                ParamSpec::float("min_value", 0.12, "", "Smallest value, i.e. brightness (0..1)")
+                ParamSpec::float("min_value", b.min_value, "", "Smallest value, i.e. brightness (0..1)")
                     .range(0.0, 1.0),
             )
             .param(
                 ParamSpec::int(
                     "morph_radius_px",
-                    1,
+                    b.morph_radius_px as i64,
                     "px",
                     "Disc radius of the opening then closing of the colour mask (0 = none)",
                 )
                 .range(0.0, 10.0),
             )
             .param(
-                ParamSpec::float("min_area_px", 20.0, "px", "Smallest blob area (pixels)")
+                ParamSpec::float("min_area_px", b.min_area_px, "px", "Smallest blob area (pixels)")
                     .at_least(0.0),
             )
             .param(
-                ParamSpec::float("max_area_px", 20000.0, "px", "Largest blob area (pixels)")
+                ParamSpec::float("max_area_px", b.max_area_px, "px", "Largest blob area (pixels)")
                     .at_least(0.0),
             )
             .param(
                 ParamSpec::float(
                     "max_aspect",
-                    3.0,
+                    b.max_aspect,
                     "",
                     "Largest axis ratio of a blob's moment ellipse (a disc tilted by t: 1 / cos t)",
                 )
@@ -82,7 +83,7 @@ impl HsvMarkersOp {
             .param(
                 ParamSpec::float(
                     "min_ellipse_fit",
-                    0.8,
+                    b.min_ellipse_fit,
                     "",
                     "Smallest overlap (intersection over union) of a blob with its moment ellipse",
                 )
@@ -91,7 +92,7 @@ impl HsvMarkersOp {
             .param(
                 ParamSpec::int(
                     "border_px",
-                    2,
+                    b.border_px as i64,
                     "px",
                     "Band around a blob whose pixels count in the centroid by their colour share",
                 )

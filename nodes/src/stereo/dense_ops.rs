@@ -189,7 +189,7 @@ impl SgmOp {
         SgmOp(
             matcher_spec(
                 "stereo.sgm",
-                3,
+                4,
                 "Semi-global matching (census or Birchfield-Tomasi costs, 4 or 8 paths) -> Disparity",
             )
             .param(ParamSpec::choice(

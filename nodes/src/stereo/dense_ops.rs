@@ -486,3 +486,64 @@ impl Op for TriangulateOp {
         Ok(Outputs::new().with("cloud", cloud))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fusegraph_engine::{ParamValue, Value};
+
+    fn grey(w: usize, h: usize) -> Value {
+        let data: Vec<u8> = (0..w * h).map(|i| (i * 37 % 251) as u8).collect();
+        Image::new(w, h, 1, Pixels::U8(data.into())).unwrap().into()
+    }
+
+    fn run_sgm(left: Value, right: Value, set: &[(&str, i64)]) -> Result<Outputs, OpError> {
+        let op = SgmOp::new();
+        let mut params = Params::default();
+        for p in &op.spec().params {
+            params.0.insert(p.name.clone(), p.default.clone().unwrap());
+        }
+        for (k, v) in set {
+            params.0.insert(k.to_string(), ParamValue::Int(*v));
+        }
+        let mut inputs = Inputs::default();
+        inputs.0.insert("left".into(), left);
+        inputs.0.insert("right".into(), right);
+        op.run(
+            &inputs,
+            &params,
+            &mut RunCtx::new("match", std::path::Path::new(".")),
+        )
+    }
+
+    #[test]
+    fn specs_are_valid() {
+        for op in [
+            SgmOp::new().0,
+            BlockMatchOp::new().0,
+            TriangulateOp::new().0,
+        ] {
+            op.check().unwrap();
+        }
+    }
+
+    #[test]
+    fn bad_input_gets_a_clear_error() {
+        let e = run_sgm(grey(40, 30), grey(40, 31), &[])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("differ in size"), "{e}");
+        let empty = [("min_disparity_px", 20), ("max_disparity_px", 10)];
+        let e = run_sgm(grey(40, 30), grey(40, 30), &empty)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("empty disparity range"), "{e}");
+        let wide = [("max_disparity_px", 63)];
+        let e = run_sgm(grey(40, 30), grey(40, 30), &wide)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("wider than the image"), "{e}");
+        let fits = [("max_disparity_px", 15)];
+        assert!(run_sgm(grey(40, 30), grey(40, 30), &fits).is_ok());
+    }
+}

@@ -44,6 +44,7 @@ pub fn block_match(
                 w,
                 h,
                 range,
+                range.count,
                 |y, out: &mut Vec<u32>| window_sums(y, r, w, h, range, &pc, out),
                 select_params,
             )
@@ -59,6 +60,7 @@ pub fn block_match(
                 w,
                 h,
                 range,
+                range.count,
                 |y, out: &mut Vec<u32>| window_sums(y, r, w, h, range, &pc, out),
                 select_params,
             )
@@ -78,6 +80,7 @@ pub fn block_match(
                 w,
                 h,
                 range,
+                range.count,
                 |y, out: &mut Vec<f32>| {
                     let (mut lr, mut rs, mut rs2) = (Vec::new(), Vec::new(), Vec::new());
                     window_sums(y, r, w, h, range, &product, &mut lr);

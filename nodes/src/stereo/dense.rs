@@ -93,7 +93,7 @@ impl Default for SgmConfig {
             max_memory_mb: 4096,
             refine: Some(RefineParams {
                 half_window: 4,
-                iterations: 5,
+                iterations: 3,
                 max_change_px: 1.0,
             }),
             max_cost_fraction: 1.0,
@@ -155,6 +155,7 @@ pub fn sgm_disparity(
         w,
         h,
         range,
+        aggregated.lanes,
         |y, out: &mut Vec<u16>| aggregated.total_row(y, out),
         &config.select,
     );

@@ -10,16 +10,20 @@
 //!
 //! With linear interpolation every window sum that involves only the right
 //! image is a mix, by the fractional shift, of sums over windows at integer
-//! positions, so those come from summed-area tables in O(1); only the two
+//! positions, so those come from prefix sums over the band of rows a window
+//! covers (built once per row, small enough to stay in cache); only the two
 //! products of the left window with the right gradient are summed per pixel.
 
 use super::pair::GreyImage;
 use rayon::prelude::*;
 
+/// Largest window side the refinement supports, px.
+pub const MAX_SIDE: usize = 31;
+
 /// How the refinement runs.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RefineParams {
-    /// Window half-size, px (window side 2 * half + 1).
+    /// Window half-size, px (window side 2 * half + 1, at most [`MAX_SIDE`]).
     pub half_window: usize,
     /// Gauss-Newton iterations.
     pub iterations: usize,
@@ -28,41 +32,65 @@ pub struct RefineParams {
     pub max_change_px: f32,
 }
 
-/// A summed-area table: `at(x, y)` is the sum over columns `< x`, rows `< y`.
-struct SummedArea {
-    stride: usize,
-    sums: Vec<f64>,
+/// Window sums over one band of rows: `window(x0, side)` is the sum of a
+/// quantity over columns `x0 .. x0 + side` of the band's rows (prefix sums
+/// over x of its column sums).
+struct BandSums(Vec<f64>);
+
+impl BandSums {
+    /// From the column sums of a quantity over the band.
+    fn from_columns(columns: &[f64]) -> Self {
+        let mut prefix = vec![0f64; columns.len() + 1];
+        for (x, c) in columns.iter().enumerate() {
+            prefix[x + 1] = prefix[x] + c;
+        }
+        BandSums(prefix)
+    }
+
+    /// Sum over columns `x0 .. x0 + side` of the band.
+    #[inline]
+    fn window(&self, x0: usize, side: usize) -> f64 {
+        self.0[x0 + side] - self.0[x0]
+    }
 }
 
-impl SummedArea {
-    /// The table of `value(x, y)` over a `w x h` image.
-    fn new(w: usize, h: usize, value: impl Fn(usize, usize) -> f64 + Sync) -> Self {
-        let stride = w + 1;
-        let mut sums = vec![0f64; stride * (h + 1)];
-        sums[stride..]
-            .par_chunks_mut(stride)
-            .enumerate()
-            .for_each(|(y, row)| {
-                for x in 0..w {
-                    row[x + 1] = row[x] + value(x, y);
-                }
-            });
-        for y in 1..=h {
-            let (above, rest) = sums.split_at_mut(y * stride);
-            for (s, a) in rest[..stride].iter_mut().zip(&above[(y - 1) * stride..]) {
-                *s += a;
-            }
+/// The eight window sums Gauss-Newton needs besides the left-gradient
+/// products, over rows `y0 .. y0 + rows`: left, right, gradient, gradient^2,
+/// gradient x next gradient, gradient x right, gradient x next right, next
+/// gradient x right ("next" = one column to the right, 0 past the edge).
+fn band_sums(
+    lf: &[f32],
+    rf: &[f32],
+    gx: &[f32],
+    w: usize,
+    y0: usize,
+    rows: usize,
+) -> [BandSums; 8] {
+    let mut col = [(); 8].map(|_| vec![0f64; w]);
+    for y in y0..y0 + rows {
+        let (l, r, g) = (
+            &lf[y * w..(y + 1) * w],
+            &rf[y * w..(y + 1) * w],
+            &gx[y * w..(y + 1) * w],
+        );
+        for x in 0..w {
+            let (lv, rv, gv) = (l[x] as f64, r[x] as f64, g[x] as f64);
+            let (r1, g1) = if x + 1 < w {
+                (r[x + 1] as f64, g[x + 1] as f64)
+            } else {
+                (0.0, 0.0)
+            };
+            col[0][x] += lv;
+            col[1][x] += rv;
+            col[2][x] += gv;
+            col[3][x] += gv * gv;
+            col[4][x] += gv * g1;
+            col[5][x] += gv * rv;
+            col[6][x] += gv * r1;
+            col[7][x] += g1 * rv;
         }
-        SummedArea { stride, sums }
     }
-
-    /// Sum over columns `x0 .. x0 + side`, rows `y0 .. y0 + side`.
-    #[inline]
-    fn window(&self, x0: usize, y0: usize, side: usize) -> f64 {
-        let s = self.stride;
-        let (a, b) = (y0 * s, (y0 + side) * s);
-        self.sums[b + x0 + side] - self.sums[b + x0] - self.sums[a + x0 + side] + self.sums[a + x0]
-    }
+    col.map(|c| BandSums::from_columns(&c))
 }
 
 /// Refines every valid (non-NaN) disparity of `disparity` in place. Pixels
@@ -75,7 +103,7 @@ pub fn refine_disparity(
     params: &RefineParams,
 ) -> usize {
     let (w, h) = (left.width, left.height);
-    let r = params.half_window;
+    let r = params.half_window.min(MAX_SIDE / 2);
     let side = 2 * r + 1;
     if w < side + 2 || h < side {
         return 0;
@@ -89,34 +117,6 @@ pub fn refine_disparity(
             gx[y * w + x] = 0.5 * (rf[y * w + x + 1] - rf[y * w + x - 1]);
         }
     }
-    let at = |img: &[f32], x: usize, y: usize| img[y * w + x] as f64;
-    let next = |img: &[f32], x: usize, y: usize| {
-        if x + 1 < w {
-            img[y * w + x + 1] as f64
-        } else {
-            0.0
-        }
-    };
-    let tables = [
-        SummedArea::new(w, h, |x, y| at(&lf, x, y)),
-        SummedArea::new(w, h, |x, y| at(&rf, x, y)),
-        SummedArea::new(w, h, |x, y| at(&gx, x, y)),
-        SummedArea::new(w, h, |x, y| at(&gx, x, y).powi(2)),
-        SummedArea::new(w, h, |x, y| at(&gx, x, y) * next(&gx, x, y)),
-        SummedArea::new(w, h, |x, y| at(&gx, x, y) * at(&rf, x, y)),
-        SummedArea::new(w, h, |x, y| at(&gx, x, y) * next(&rf, x, y)),
-        SummedArea::new(w, h, |x, y| next(&gx, x, y) * at(&rf, x, y)),
-    ];
-    let [
-        sum_l,
-        sum_r,
-        sum_g,
-        sum_gg,
-        sum_g_g1,
-        sum_g_r,
-        sum_g_r1,
-        sum_g1_r,
-    ] = &tables;
     let n = (side * side) as f64;
     disparity
         .par_chunks_mut(w)
@@ -127,12 +127,24 @@ pub fn refine_disparity(
                 return 0;
             }
             let y0 = y - r;
+            // Every window sum that involves only the right image (and the
+            // left image's plain sum), for this band of rows.
+            let [
+                sum_l,
+                sum_r,
+                sum_g,
+                sum_gg,
+                sum_g_g1,
+                sum_g_r,
+                sum_g_r1,
+                sum_g1_r,
+            ] = band_sums(&lf, &rf, &gx, w, y0, side);
             for x in r..w - r {
                 let d0 = row[x];
                 if d0.is_nan() {
                     continue;
                 }
-                let sl = sum_l.window(x - r, y0, side);
+                let sl = sum_l.window(x - r, side);
                 let mut d = d0 as f64;
                 let mut ok = true;
                 for _ in 0..params.iterations {
@@ -145,28 +157,31 @@ pub fn refine_disparity(
                     }
                     let (c, t) = (cf as usize, xs - cf);
                     let u = 1.0 - t;
-                    // Left window against the right gradient at c and c + 1.
-                    let (mut g0l, mut g1l) = (0f32, 0f32);
+                    // Left window against the right gradient at c and c + 1,
+                    // accumulated per column so the loop is elementwise
+                    // (vector code) rather than one long chain of additions.
+                    let (mut acc0, mut acc1) = ([0f32; MAX_SIDE], [0f32; MAX_SIDE]);
                     for j in 0..side {
                         let base = (y0 + j) * w;
                         let l = &lf[base + x - r..base + x - r + side];
-                        let g = &gx[base + c..base + c + side + 1];
+                        let g0 = &gx[base + c..base + c + side];
+                        let g1 = &gx[base + c + 1..base + c + 1 + side];
                         for i in 0..side {
-                            g0l += g[i] * l[i];
-                            g1l += g[i + 1] * l[i];
+                            acc0[i] += g0[i] * l[i];
+                            acc1[i] += g1[i] * l[i];
                         }
                     }
-                    let s_r =
-                        sl - u * sum_r.window(c, y0, side) - t * sum_r.window(c + 1, y0, side);
-                    let s_g = u * sum_g.window(c, y0, side) + t * sum_g.window(c + 1, y0, side);
-                    let s_gg = u * u * sum_gg.window(c, y0, side)
-                        + 2.0 * t * u * sum_g_g1.window(c, y0, side)
-                        + t * t * sum_gg.window(c + 1, y0, side);
+                    let g0l: f32 = acc0[..side].iter().sum();
+                    let g1l: f32 = acc1[..side].iter().sum();
+                    let s_r = sl - u * sum_r.window(c, side) - t * sum_r.window(c + 1, side);
+                    let s_g = u * sum_g.window(c, side) + t * sum_g.window(c + 1, side);
+                    let s_gg = u * u * sum_gg.window(c, side)
+                        + 2.0 * t * u * sum_g_g1.window(c, side)
+                        + t * t * sum_gg.window(c + 1, side);
                     let s_gr = u * g0l as f64 + t * g1l as f64
-                        - (u * u * sum_g_r.window(c, y0, side)
-                            + t * u
-                                * (sum_g_r1.window(c, y0, side) + sum_g1_r.window(c, y0, side))
-                            + t * t * sum_g_r.window(c + 1, y0, side));
+                        - (u * u * sum_g_r.window(c, side)
+                            + t * u * (sum_g_r1.window(c, side) + sum_g1_r.window(c, side))
+                            + t * t * sum_g_r.window(c + 1, side));
                     let var_g = s_gg - s_g * s_g / n;
                     if var_g < 1e-3 * n {
                         ok = false; // no horizontal texture to align
@@ -208,12 +223,19 @@ mod tests {
     }
 
     #[test]
-    fn summed_area_windows() {
-        let t = SummedArea::new(5, 4, |x, y| (x + 10 * y) as f64);
+    fn band_windows() {
+        let band = |y0: usize, rows: usize| {
+            let cols: Vec<f64> = (0..5)
+                .map(|x| (y0..y0 + rows).map(|y| (x + 10 * y) as f64).sum())
+                .collect();
+            BandSums::from_columns(&cols)
+        };
+        let t = band(2, 2);
         // Columns 1..3, rows 2..4: (21 + 22) + (31 + 32).
-        assert_eq!(t.window(1, 2, 2), 106.0);
+        assert_eq!(t.window(1, 2), 106.0);
+        let whole = band(0, 4);
         assert_eq!(
-            t.window(0, 0, 4),
+            whole.window(0, 4),
             (0..4)
                 .flat_map(|y| (0..4).map(move |x| (x + 10 * y) as f64))
                 .sum::<f64>()

@@ -22,12 +22,14 @@ pub struct SelectParams {
 }
 
 /// Chooses a disparity per pixel (NaN = invalid) from the costs of each row,
-/// `[x][k]`, which `row_costs(y, buffer)` writes into `buffer`. Costs of
+/// `[x][k]` with `stride` (>= the disparity count) entries per pixel, which
+/// `row_costs(y, buffer)` writes into `buffer`. Costs of
 /// impossible matches must be at least as high as any possible one.
 pub fn select<T, F>(
     width: usize,
     height: usize,
     range: DisparityRange,
+    stride: usize,
     row_costs: F,
     params: &SelectParams,
 ) -> Vec<f32>
@@ -41,7 +43,7 @@ where
         .enumerate()
         .for_each_init(Vec::new, |costs, (y, row)| {
             row_costs(y, costs);
-            select_row(costs, width, range, params, row);
+            select_row(costs, width, range, stride, params, row);
         });
     debug_assert!(n > 0);
     out
@@ -75,6 +77,7 @@ fn select_row<T: Cost>(
     costs: &[T],
     width: usize,
     range: DisparityRange,
+    stride: usize,
     params: &SelectParams,
     row: &mut [f32],
 ) {
@@ -83,7 +86,7 @@ fn select_row<T: Cost>(
     // Winners of the left pixels (k, or n for none).
     let mut winner = vec![n; width];
     for (x, w) in winner.iter_mut().enumerate() {
-        let c = &costs[x * n..(x + 1) * n];
+        let c = &costs[x * stride..x * stride + n];
         let best = lowest(c);
         let Some(k) = c.iter().position(|&v| v == best) else {
             continue;
@@ -114,7 +117,7 @@ fn select_row<T: Cost>(
         let mut right = vec![(T::WORST, n); width];
         for (x, &k) in winner.iter().enumerate().filter(|(_, k)| **k < n) {
             let xr = (x as i64 - range.min_px as i64 - k as i64) as usize;
-            let c = costs[x * n + k];
+            let c = costs[x * stride + k];
             if c < right[xr].0 {
                 right[xr] = (c, k);
             }
@@ -128,7 +131,7 @@ fn select_row<T: Cost>(
                 continue;
             }
         }
-        let c = &costs[x * n..(x + 1) * n];
+        let c = &costs[x * stride..x * stride + n];
         let mut d = (range.min_px + k as i32) as f64;
         if params.subpixel && k > 0 && k + 1 < n {
             let (a, b, m): (f64, f64, f64) = (c[k - 1].into(), c[k + 1].into(), c[k].into());
@@ -151,6 +154,7 @@ mod tests {
             width,
             1,
             range,
+            range.count,
             |_, buf: &mut Vec<u16>| buf.clone_from(&costs),
             &p,
         )

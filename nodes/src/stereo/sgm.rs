@@ -63,6 +63,9 @@ pub struct Aggregated {
     pub height: usize,
     /// Disparities.
     pub range: DisparityRange,
+    /// Lanes per pixel in `down` and `up`: the disparity count rounded up to a
+    /// whole number of vectors (the lanes beyond the count hold nothing).
+    pub lanes: usize,
     /// Sum of the top-down pass's paths.
     pub down: Vec<u16>,
     /// Sum of the bottom-up pass's paths.
@@ -70,16 +73,17 @@ pub struct Aggregated {
 }
 
 impl Aggregated {
-    /// The total aggregated costs of row `y`, `[x][k]`, into `out`.
+    /// The total aggregated costs of row `y`, `[x][lane]` ([`Aggregated::lanes`]
+    /// per pixel), into `out`.
     pub fn total_row(&self, y: usize, out: &mut Vec<u16>) {
-        let len = self.width * self.range.count;
+        let len = self.width * self.lanes;
         let span = y * len..(y + 1) * len;
         out.clear();
         out.extend(
             self.down[span.clone()]
                 .iter()
                 .zip(&self.up[span])
-                .map(|(a, b)| a + b),
+                .map(|(a, b)| a.saturating_add(*b)),
         );
     }
 }
@@ -107,9 +111,16 @@ pub fn aggregate(volume: &CostVolume, params: &SgmParams, guide: Option<&GreyIma
         width: volume.width,
         height: volume.height,
         range: volume.range,
+        lanes: lanes_for(volume.range.count),
         down,
         up,
     }
+}
+
+/// Lanes per pixel for `n` disparities: a whole number of 16-lane vectors, so
+/// the kernels never fall back to scalar code for a remainder.
+pub fn lanes_for(n: usize) -> usize {
+    n.div_ceil(16) * 16
 }
 
 /// One pass over the image: rows in order (or reversed), pixels in order (or
@@ -128,7 +139,13 @@ fn pass(
         Paths::Four => 1,
         Paths::Eight => 3,
     };
-    let stride = n + 2;
+    let lanes = lanes_for(n);
+    let stride = lanes + 2;
+    // Lanes past the disparity count get a sentinel added, so they never win.
+    let pad: Vec<u16> = (0..lanes)
+        .map(|k| if k < n { 0 } else { SENTINEL })
+        .collect();
+    let mut cost_lanes = vec![0u8; lanes];
     // Path costs of the previous and current rows, per vertical path, with a
     // virtual pixel on each side (index 0 and w + 1) that starts paths: its
     // costs are 0, so a path's first pixel gets just its matching cost.
@@ -136,7 +153,7 @@ fn pass(
         let mut b = vec![0u16; vertical_paths * (w + 2) * stride];
         for px in b.chunks_exact_mut(stride) {
             px[0] = SENTINEL;
-            px[n + 1] = SENTINEL;
+            px[n + 1..].fill(SENTINEL);
         }
         b
     };
@@ -149,9 +166,9 @@ fn pass(
     let mut h_cur = vec![0u16; stride];
     for b in [&mut h_prev, &mut h_cur] {
         b[0] = SENTINEL;
-        b[n + 1] = SENTINEL;
+        b[n + 1..].fill(SENTINEL);
     }
-    let mut sums = vec![0u16; w * h * n];
+    let mut sums = vec![0u16; w * h * lanes];
     let p1 = params.p1;
     // P2 from the pixel at pass position (i, j) to its neighbour at (i + di, j + dj).
     let actual = |i: usize, j: usize| {
@@ -174,14 +191,15 @@ fn pass(
     for j in 0..h {
         let y = if reverse { h - 1 - j } else { j };
         let cost_row = &volume.data[y * w * n..(y + 1) * w * n];
-        let sum_row = &mut sums[y * w * n..(y + 1) * w * n];
+        let sum_row = &mut sums[y * w * lanes..(y + 1) * w * lanes];
         h_prev[1..=n].fill(0);
         let mut h_min = 0u16;
         let plane = (w + 2) * stride;
         for i in 0..w {
             let x = if reverse { w - 1 - i } else { i };
-            let cost = &cost_row[x * n..(x + 1) * n];
-            let sum = &mut sum_row[x * n..(x + 1) * n];
+            cost_lanes[..n].copy_from_slice(&cost_row[x * n..(x + 1) * n]);
+            let cost = &cost_lanes[..];
+            let sum = &mut sum_row[x * lanes..(x + 1) * lanes];
             let at = |path: usize, px: usize| path * plane + px * stride;
             if vertical_paths == 3 {
                 let (c0, rest) = cur.split_at_mut(plane);
@@ -189,6 +207,7 @@ fn pass(
                 let o = (i + 1) * stride;
                 let mins = isa.sgm_pixel4(
                     cost,
+                    &pad,
                     [
                         &h_prev,
                         &prev[at(0, i + 1)..at(0, i + 1) + stride],
@@ -224,6 +243,7 @@ fn pass(
                 let o = (i + 1) * stride;
                 let mins = isa.sgm_pixel2(
                     cost,
+                    &pad,
                     [&h_prev, &prev[o..o + stride]],
                     [h_min, prev_min[i + 1]],
                     p1,
@@ -314,7 +334,8 @@ mod tests {
                 }
                 let mut got = Vec::new();
                 agg.total_row(y, &mut got);
-                assert_eq!(&got[x * n..(x + 1) * n], &total[..], "pixel ({x}, {y})");
+                let l = agg.lanes;
+                assert_eq!(&got[x * l..x * l + n], &total[..], "pixel ({x}, {y})");
             }
         }
     }
@@ -360,7 +381,7 @@ mod tests {
         let dl = path_costs(&anti, 2, 9)[2].clone();
         for k in 0..n {
             assert_eq!(
-                agg.down[(y * w + x) * n + k],
+                agg.down[(y * w + x) * agg.lanes + k],
                 lr[k] + tb[k] + expect_dr[k] + dl[k],
                 "k {k}"
             );

@@ -85,13 +85,16 @@ kernels! {
         }
     }
 
-    /// One pixel of semi-global aggregation along `N` paths at once. For path
-    /// p, `prev[p]` holds the previous pixel's path costs in lanes 1..=n (lane 0
-    /// and n + 1 are large sentinels), `prev_min[p]` their minimum; the new path
-    /// costs go to lanes 1..=n of `out[p]`, their sum over paths to `sum`, and
-    /// the new minima are returned. `cost` has the n matching costs.
+    /// One pixel of semi-global aggregation along four paths at once. For
+    /// path p, `prev[p]` holds the previous pixel's path costs in lanes 1..=n
+    /// (lane 0 and n + 1 are large sentinels), `prev_min[p]` their minimum; the
+    /// new path costs go to lanes 1..=n of `out[p]`, their (saturating) sum
+    /// over paths to `sum`, and the new minima are returned. `cost` has the n
+    /// matching costs; `pad` is added to every new cost (0, or a sentinel for
+    /// lanes past the disparity count, which then never win).
     fn sgm_pixel4(
         cost: &[u8],
+        pad: &[u16],
         prev: [&[u16]; 4],
         prev_min: [u16; 4],
         p1: u16,
@@ -99,12 +102,13 @@ kernels! {
         out: [&mut [u16]; 4],
         sum: &mut [u16],
     ) -> [u16; 4] {
-        sgm_pixel_body(cost, prev, prev_min, p1, p2, out, sum)
+        sgm_pixel_body(cost, pad, prev, prev_min, p1, p2, out, sum)
     }
 
     /// [`Isa::sgm_pixel4`] for two paths.
     fn sgm_pixel2(
         cost: &[u8],
+        pad: &[u16],
         prev: [&[u16]; 2],
         prev_min: [u16; 2],
         p1: u16,
@@ -112,7 +116,7 @@ kernels! {
         out: [&mut [u16]; 2],
         sum: &mut [u16],
     ) -> [u16; 2] {
-        sgm_pixel_body(cost, prev, prev_min, p1, p2, out, sum)
+        sgm_pixel_body(cost, pad, prev, prev_min, p1, p2, out, sum)
     }
 }
 
@@ -121,6 +125,7 @@ kernels! {
 #[inline(always)]
 fn sgm_pixel_body<const N: usize>(
     cost: &[u8],
+    pad: &[u16],
     prev: [&[u16]; N],
     prev_min: [u16; N],
     p1: u16,
@@ -130,6 +135,7 @@ fn sgm_pixel_body<const N: usize>(
 ) -> [u16; N] {
     let n = cost.len();
     let sum = &mut sum[..n];
+    let pad = &pad[..n];
     let mut new_min = [u16::MAX; N];
     // One path at a time: each loop is a plain elementwise pass over the
     // disparities that the compiler turns into vector code.
@@ -140,7 +146,7 @@ fn sgm_pixel_body<const N: usize>(
         let mut lowest = u16::MAX;
         for k in 0..n {
             let m = same[k].min(below[k].min(above[k]) + p1).min(base);
-            let v = cost[k] as u16 + m - floor;
+            let v = cost[k] as u16 + m - floor + pad[k];
             out[k] = v;
             lowest = lowest.min(v);
         }
@@ -149,7 +155,7 @@ fn sgm_pixel_body<const N: usize>(
             sum.copy_from_slice(out);
         } else {
             for (s, &v) in sum.iter_mut().zip(out.iter()) {
-                *s += v;
+                *s = s.saturating_add(v);
             }
         }
     }
@@ -183,6 +189,7 @@ mod tests {
             let [a, b, c, d] = &mut outs;
             let m = isa.sgm_pixel4(
                 &cost,
+                &[0u16; 37],
                 [&prev[0], &prev[1], &prev[2], &prev[3]],
                 mins,
                 8,

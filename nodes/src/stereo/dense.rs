@@ -5,8 +5,8 @@ use super::cost::{CostVolume, bt_costs, census_costs, check_census_window};
 use super::filter::filter_speckles;
 use super::pair::{DisparityRange, GreyImage, check_pair};
 use super::refine::{RefineParams, refine_disparity};
-use super::select::{SelectParams, select};
-use super::sgm::{SgmParams, aggregate};
+use super::select::SelectParams;
+use super::sgm::{SgmParams, aggregate_and_select};
 use super::texture::{flat_windows, noise_sigma};
 use rayon::prelude::*;
 
@@ -149,17 +149,8 @@ pub fn sgm_disparity(
         }
     };
     let t1 = std::time::Instant::now();
-    let aggregated = aggregate(&volume, &config.sgm, Some(left));
+    let mut disparity = aggregate_and_select(&volume, &config.sgm, Some(left), &config.select);
     let t2 = std::time::Instant::now();
-    let mut disparity = select(
-        w,
-        h,
-        range,
-        aggregated.lanes,
-        |y, out: &mut Vec<u16>| aggregated.total_row(y, out),
-        &config.select,
-    );
-    drop(aggregated);
     if config.max_cost_fraction < 1.0 {
         let limit = config.max_cost_fraction * volume.max_cost as f32;
         disparity.par_iter_mut().enumerate().for_each(|(i, d)| {
@@ -196,7 +187,7 @@ pub fn sgm_disparity(
     }
     let ms = |a: std::time::Instant, b: std::time::Instant| (b - a).as_secs_f64() * 1e3;
     tracing::debug!(
-        "sgm {w} x {h} x {}: costs {:.1} ms, aggregation {:.1} ms, selection {:.1} ms, speckles {:.1} ms, refinement {:.1} ms",
+        "sgm {w} x {h} x {}: costs {:.1} ms, aggregation and selection {:.1} ms, filters {:.1} ms, speckles {:.1} ms, refinement {:.1} ms",
         range.count,
         ms(t0, t1),
         ms(t1, t2),

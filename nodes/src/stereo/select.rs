@@ -73,7 +73,8 @@ fn lowest<T: Cost>(c: &[T]) -> T {
     c.iter().fold(T::WORST, |a, &b| if b < a { b } else { a })
 }
 
-fn select_row<T: Cost>(
+/// [`select`] for one row of costs (`stride` entries per pixel) into `row`.
+pub(crate) fn select_row<T: Cost>(
     costs: &[T],
     width: usize,
     range: DisparityRange,

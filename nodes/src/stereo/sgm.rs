@@ -12,7 +12,10 @@
 
 use super::cost::CostVolume;
 use super::pair::{DisparityRange, GreyImage};
+use super::select::{SelectParams, select_row};
 use super::simd::Isa;
+use std::sync::OnceLock;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 /// Lane value that never wins a minimum (and cannot overflow with P1 added).
 const SENTINEL: u16 = 16383;
@@ -93,15 +96,7 @@ impl Aggregated {
 pub fn aggregate(volume: &CostVolume, params: &SgmParams, guide: Option<&GreyImage>) -> Aggregated {
     let isa = Isa::detect();
     // P2 by grey-level step between neighbours.
-    let p2_of: Vec<u16> = (0..256)
-        .map(|step| match guide {
-            Some(_) if params.p2_gamma > 0.0 => {
-                let g = params.p2_gamma;
-                ((params.p2 as f32 * g / (g + step as f32)).round() as u16).max(params.p1 + 1)
-            }
-            _ => params.p2,
-        })
-        .collect();
+    let p2_of = p2_table(params, guide);
     let guide = guide.filter(|g| (g.width, g.height) == (volume.width, volume.height));
     let (down, up) = rayon::join(
         || pass(volume, params, &p2_of, guide, false, isa),
@@ -126,14 +121,15 @@ pub fn lanes_for(n: usize) -> usize {
 /// One pass over the image: rows in order (or reversed), pixels in order (or
 /// reversed). In the pass's own frame, pixel i of row j continues the paths from
 /// (i - 1, j) and, from the row before, (i, j - 1), (i - 1, j - 1), (i + 1, j - 1).
-fn pass(
+fn run_pass(
     volume: &CostVolume,
     params: &SgmParams,
     p2_of: &[u16],
     guide: Option<&GreyImage>,
     reverse: bool,
     isa: Isa,
-) -> Vec<u16> {
+    mut on_row: impl FnMut(usize, &[u16]),
+) {
     let (w, h, n) = (volume.width, volume.height, volume.range.count);
     let vertical_paths = match params.paths {
         Paths::Four => 1,
@@ -168,7 +164,9 @@ fn pass(
         b[0] = SENTINEL;
         b[n + 1..].fill(SENTINEL);
     }
-    let mut sums = vec![0u16; w * h * lanes];
+    // The pass's sum of paths for the current row, `[x][lane]`, handed to
+    // `on_row` when the row is done.
+    let mut sum_row = vec![0u16; w * lanes];
     let p1 = params.p1;
     // P2 from the pixel at pass position (i, j) to its neighbour at (i + di, j + dj).
     let actual = |i: usize, j: usize| {
@@ -191,7 +189,6 @@ fn pass(
     for j in 0..h {
         let y = if reverse { h - 1 - j } else { j };
         let cost_row = &volume.data[y * w * n..(y + 1) * w * n];
-        let sum_row = &mut sums[y * w * lanes..(y + 1) * w * lanes];
         h_prev[1..=n].fill(0);
         let mut h_min = 0u16;
         let plane = (w + 2) * stride;
@@ -258,8 +255,122 @@ fn pass(
         }
         std::mem::swap(&mut prev, &mut cur);
         std::mem::swap(&mut prev_min, &mut cur_min);
+        on_row(y, &sum_row);
     }
+}
+
+/// One pass's sums of paths as a whole volume `[y][x][lane]`.
+fn pass(
+    volume: &CostVolume,
+    params: &SgmParams,
+    p2_of: &[u16],
+    guide: Option<&GreyImage>,
+    reverse: bool,
+    isa: Isa,
+) -> Vec<u16> {
+    let len = volume.width * lanes_for(volume.range.count);
+    let mut sums = vec![0u16; volume.height * len];
+    run_pass(volume, params, p2_of, guide, reverse, isa, |y, row| {
+        sums[y * len..(y + 1) * len].copy_from_slice(row)
+    });
     sums
+}
+
+/// Semi-global matching from costs to disparities (px, NaN = invalid) without
+/// holding two whole volumes: the top-down and bottom-up passes run on two
+/// threads and meet in the middle. Each keeps its sums only for the half of
+/// the rows the other reaches last; when it reaches a row the other has
+/// already summed, it adds the two and selects that row's disparities at
+/// once. So one volume of sums instead of two, and selection runs in the
+/// passes, in parallel.
+pub fn aggregate_and_select(
+    volume: &CostVolume,
+    params: &SgmParams,
+    guide: Option<&GreyImage>,
+    select: &SelectParams,
+) -> Vec<f32> {
+    let (w, h) = (volume.width, volume.height);
+    let lanes = lanes_for(volume.range.count);
+    let isa = Isa::detect();
+    let p2_of = p2_table(params, guide);
+    let guide = guide.filter(|g| (g.width, g.height) == (w, h));
+    let mid = h / 2;
+    // Rows 0..mid summed by the top-down pass (read by the bottom-up one),
+    // rows mid..h by the bottom-up pass.
+    let handed: Vec<OnceLock<Vec<u16>>> = (0..h).map(|_| OnceLock::new()).collect();
+    let failed = AtomicBool::new(false);
+    let mut disparity = vec![f32::NAN; w * h];
+    let (top, bottom) = disparity.split_at_mut(mid * w);
+    let half = |reverse: bool, out: &mut [f32], first_row: usize| {
+        // If this thread panics, the other must stop waiting for its rows.
+        let guard = PanicFlag(&failed);
+        let mut total = vec![0u16; w * lanes];
+        run_pass(volume, params, &p2_of, guide, reverse, isa, |y, row| {
+            let mine_to_hand = if reverse { y >= mid } else { y < mid };
+            if mine_to_hand {
+                let _ = handed[y].set(row.to_vec());
+                return;
+            }
+            let Some(other) = wait_for(&handed[y], &failed) else {
+                return;
+            };
+            for ((t, a), b) in total.iter_mut().zip(row).zip(other) {
+                *t = a.saturating_add(*b);
+            }
+            let r = y - first_row;
+            select_row(
+                &total,
+                w,
+                volume.range,
+                lanes,
+                select,
+                &mut out[r * w..(r + 1) * w],
+            );
+        });
+        drop(guard);
+    };
+    std::thread::scope(|scope| {
+        scope.spawn(|| half(false, bottom, mid));
+        half(true, top, 0);
+    });
+    disparity
+}
+
+/// The P2 of every grey-level step between neighbours (0..=255).
+fn p2_table(params: &SgmParams, guide: Option<&GreyImage>) -> Vec<u16> {
+    (0..256)
+        .map(|step| match guide {
+            Some(_) if params.p2_gamma > 0.0 => {
+                let g = params.p2_gamma;
+                ((params.p2 as f32 * g / (g + step as f32)).round() as u16).max(params.p1 + 1)
+            }
+            _ => params.p2,
+        })
+        .collect()
+}
+
+/// Raises its flag when dropped during a panic.
+struct PanicFlag<'a>(&'a AtomicBool);
+
+impl Drop for PanicFlag<'_> {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            self.0.store(true, Ordering::Release);
+        }
+    }
+}
+
+/// The row another thread hands over, or `None` when that thread failed.
+fn wait_for<'a>(cell: &'a OnceLock<Vec<u16>>, failed: &AtomicBool) -> Option<&'a Vec<u16>> {
+    loop {
+        if let Some(v) = cell.get() {
+            return Some(v);
+        }
+        if failed.load(Ordering::Acquire) {
+            return None;
+        }
+        std::thread::yield_now();
+    }
 }
 
 #[cfg(test)]
@@ -336,6 +447,57 @@ mod tests {
                 agg.total_row(y, &mut got);
                 let l = agg.lanes;
                 assert_eq!(&got[x * l..x * l + n], &total[..], "pixel ({x}, {y})");
+            }
+        }
+    }
+
+    #[test]
+    fn meeting_in_the_middle_equals_whole_volumes() {
+        let range = DisparityRange::new(-3, 20, 40).unwrap();
+        for (w, h) in [(40usize, 1usize), (40, 7), (37, 30)] {
+            let n = range.count;
+            let data: Vec<u8> = (0..w * h * n)
+                .map(|i| ((i * 2654435761) >> 7) as u8 % 40)
+                .collect();
+            let volume = CostVolume {
+                width: w,
+                height: h,
+                range,
+                max_cost: 40,
+                data,
+            };
+            let guide = GreyImage {
+                width: w,
+                height: h,
+                data: (0..w * h).map(|i| (i * 37 % 256) as u8).collect(),
+            };
+            let select = SelectParams {
+                uniqueness_pct: 5.0,
+                lr_max_diff_px: Some(1.0),
+                subpixel: true,
+            };
+            for paths in [Paths::Four, Paths::Eight] {
+                let params = SgmParams {
+                    p1: 4,
+                    p2: 30,
+                    paths,
+                    p2_gamma: 8.0,
+                };
+                let agg = aggregate(&volume, &params, Some(&guide));
+                let whole = super::super::select::select(
+                    w,
+                    h,
+                    range,
+                    agg.lanes,
+                    |y, out: &mut Vec<u16>| agg.total_row(y, out),
+                    &select,
+                );
+                let fused = aggregate_and_select(&volume, &params, Some(&guide), &select);
+                let same = whole
+                    .iter()
+                    .zip(&fused)
+                    .all(|(a, b)| a.to_bits() == b.to_bits());
+                assert!(same, "{w} x {h} {paths:?}");
             }
         }
     }

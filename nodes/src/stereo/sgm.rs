@@ -13,7 +13,7 @@
 use super::cost::CostVolume;
 use super::pair::{DisparityRange, GreyImage};
 use super::select::{SelectParams, select_row};
-use super::simd::Isa;
+use super::simd::{Isa, sgm_pixel_body};
 use std::sync::OnceLock;
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -186,76 +186,143 @@ fn run_pass(
         let (nx, ny) = actual(ni as usize, nj as usize);
         p2_of[g.at(x, y).abs_diff(g.at(nx, ny)) as usize]
     };
+    let mut p2_row = vec![[params.p2; 4]; w];
     for j in 0..h {
         let y = if reverse { h - 1 - j } else { j };
-        let cost_row = &volume.data[y * w * n..(y + 1) * w * n];
-        h_prev[1..=n].fill(0);
-        let mut h_min = 0u16;
-        let plane = (w + 2) * stride;
-        for i in 0..w {
-            let x = if reverse { w - 1 - i } else { i };
-            cost_lanes[..n].copy_from_slice(&cost_row[x * n..(x + 1) * n]);
-            let cost = &cost_lanes[..];
-            let sum = &mut sum_row[x * lanes..(x + 1) * lanes];
-            let at = |path: usize, px: usize| path * plane + px * stride;
-            if vertical_paths == 3 {
-                let (c0, rest) = cur.split_at_mut(plane);
-                let (c1, c2) = rest.split_at_mut(plane);
-                let o = (i + 1) * stride;
-                let mins = isa.sgm_pixel4(
-                    cost,
-                    &pad,
-                    [
-                        &h_prev,
-                        &prev[at(0, i + 1)..at(0, i + 1) + stride],
-                        &prev[at(1, i)..at(1, i) + stride],
-                        &prev[at(2, i + 2)..at(2, i + 2) + stride],
-                    ],
-                    [
-                        h_min,
-                        prev_min[i + 1],
-                        prev_min[(w + 2) + i],
-                        prev_min[2 * (w + 2) + i + 2],
-                    ],
-                    p1,
-                    [
-                        p2_towards(i, j, -1, 0),
-                        p2_towards(i, j, 0, -1),
-                        p2_towards(i, j, -1, -1),
-                        p2_towards(i, j, 1, -1),
-                    ],
-                    [
-                        &mut h_cur,
-                        &mut c0[o..o + stride],
-                        &mut c1[o..o + stride],
-                        &mut c2[o..o + stride],
-                    ],
-                    sum,
-                );
-                h_min = mins[0];
-                cur_min[i + 1] = mins[1];
-                cur_min[(w + 2) + i + 1] = mins[2];
-                cur_min[2 * (w + 2) + i + 1] = mins[3];
-            } else {
-                let o = (i + 1) * stride;
-                let mins = isa.sgm_pixel2(
-                    cost,
-                    &pad,
-                    [&h_prev, &prev[o..o + stride]],
-                    [h_min, prev_min[i + 1]],
-                    p1,
-                    [p2_towards(i, j, -1, 0), p2_towards(i, j, 0, -1)],
-                    [&mut h_cur, &mut cur[o..o + stride]],
-                    sum,
-                );
-                h_min = mins[0];
-                cur_min[i + 1] = mins[1];
-            }
-            std::mem::swap(&mut h_prev, &mut h_cur);
+        for (i, p2) in p2_row.iter_mut().enumerate() {
+            *p2 = [
+                p2_towards(i, j, -1, 0),
+                p2_towards(i, j, 0, -1),
+                p2_towards(i, j, -1, -1),
+                p2_towards(i, j, 1, -1),
+            ];
         }
+        h_prev[1..=n].fill(0);
+        let mut job = RowJob {
+            cost_row: &volume.data[y * w * n..(y + 1) * w * n],
+            n,
+            lanes,
+            vertical_paths,
+            reverse,
+            p1,
+            pad: &pad,
+            p2: &p2_row,
+            prev: &prev,
+            prev_min: &prev_min,
+            cur: &mut cur,
+            cur_min: &mut cur_min,
+            h_prev: &mut h_prev,
+            h_cur: &mut h_cur,
+            cost_lanes: &mut cost_lanes,
+            sum_row: &mut sum_row,
+        };
+        isa.sgm_row(&mut job);
         std::mem::swap(&mut prev, &mut cur);
         std::mem::swap(&mut prev_min, &mut cur_min);
         on_row(y, &sum_row);
+    }
+}
+
+/// One row of a pass: everything [`row_body`] reads and writes.
+pub(crate) struct RowJob<'a> {
+    /// The row's matching costs, `[x][k]`.
+    pub cost_row: &'a [u8],
+    /// Disparities.
+    pub n: usize,
+    /// Lanes per pixel (n rounded up to whole vectors).
+    pub lanes: usize,
+    /// 1 (vertical) or 3 (vertical and diagonals) paths from the previous row.
+    pub vertical_paths: usize,
+    /// Whether the pass runs right to left (and bottom-up).
+    pub reverse: bool,
+    /// Small-step penalty.
+    pub p1: u16,
+    /// 0 for real lanes, a sentinel for padding lanes.
+    pub pad: &'a [u16],
+    /// P2 per pass position, per path (horizontal, vertical, two diagonals).
+    pub p2: &'a [[u16; 4]],
+    /// Path costs of the previous row, per vertical path and padded pixel.
+    pub prev: &'a [u16],
+    /// Their minima.
+    pub prev_min: &'a [u16],
+    /// Path costs of this row (written).
+    pub cur: &'a mut [u16],
+    /// Their minima (written).
+    pub cur_min: &'a mut [u16],
+    /// Horizontal path costs of the previous pixel.
+    pub h_prev: &'a mut Vec<u16>,
+    /// Horizontal path costs of this pixel (scratch).
+    pub h_cur: &'a mut Vec<u16>,
+    /// One pixel's costs, padded to `lanes`.
+    pub cost_lanes: &'a mut [u8],
+    /// The sums of paths of this row (written).
+    pub sum_row: &'a mut [u16],
+}
+
+/// The pixels of one row of a pass, in the pass's order.
+#[inline(always)]
+pub(crate) fn row_body(job: &mut RowJob<'_>) {
+    let (n, lanes) = (job.n, job.lanes);
+    let w = job.p2.len();
+    let stride = lanes + 2;
+    let plane = (w + 2) * stride;
+    let mut h_min = 0u16;
+    for i in 0..w {
+        let x = if job.reverse { w - 1 - i } else { i };
+        job.cost_lanes[..n].copy_from_slice(&job.cost_row[x * n..(x + 1) * n]);
+        let cost = &job.cost_lanes[..];
+        let sum = &mut job.sum_row[x * lanes..(x + 1) * lanes];
+        let p2 = job.p2[i];
+        let at = |path: usize, px: usize| path * plane + px * stride;
+        let o = (i + 1) * stride;
+        if job.vertical_paths == 3 {
+            let (c0, rest) = job.cur.split_at_mut(plane);
+            let (c1, c2) = rest.split_at_mut(plane);
+            let prev = job.prev;
+            let mins = sgm_pixel_body(
+                cost,
+                job.pad,
+                [
+                    &job.h_prev[..],
+                    &prev[at(0, i + 1)..at(0, i + 1) + stride],
+                    &prev[at(1, i)..at(1, i) + stride],
+                    &prev[at(2, i + 2)..at(2, i + 2) + stride],
+                ],
+                [
+                    h_min,
+                    job.prev_min[i + 1],
+                    job.prev_min[(w + 2) + i],
+                    job.prev_min[2 * (w + 2) + i + 2],
+                ],
+                job.p1,
+                p2,
+                [
+                    &mut job.h_cur[..],
+                    &mut c0[o..o + stride],
+                    &mut c1[o..o + stride],
+                    &mut c2[o..o + stride],
+                ],
+                sum,
+            );
+            h_min = mins[0];
+            job.cur_min[i + 1] = mins[1];
+            job.cur_min[(w + 2) + i + 1] = mins[2];
+            job.cur_min[2 * (w + 2) + i + 1] = mins[3];
+        } else {
+            let mins = sgm_pixel_body(
+                cost,
+                job.pad,
+                [&job.h_prev[..], &job.prev[o..o + stride]],
+                [h_min, job.prev_min[i + 1]],
+                job.p1,
+                [p2[0], p2[1]],
+                [&mut job.h_cur[..], &mut job.cur[o..o + stride]],
+                sum,
+            );
+            h_min = mins[0];
+            job.cur_min[i + 1] = mins[1];
+        }
+        std::mem::swap(job.h_prev, job.h_cur);
     }
 }
 
@@ -448,6 +515,34 @@ mod tests {
                 let l = agg.lanes;
                 assert_eq!(&got[x * l..x * l + n], &total[..], "pixel ({x}, {y})");
             }
+        }
+    }
+
+    #[test]
+    fn scalar_and_vector_builds_agree() {
+        let (w, h) = (23usize, 9usize);
+        let range = DisparityRange::new(0, 20, w).unwrap();
+        let data: Vec<u8> = (0..w * h * 21)
+            .map(|i| ((i * 40503) >> 5) as u8 % 50)
+            .collect();
+        let volume = CostVolume {
+            width: w,
+            height: h,
+            range,
+            max_cost: 50,
+            data,
+        };
+        let params = SgmParams {
+            p1: 5,
+            p2: 40,
+            paths: Paths::Eight,
+            p2_gamma: 0.0,
+        };
+        let p2_of = p2_table(&params, None);
+        for reverse in [false, true] {
+            let scalar = pass(&volume, &params, &p2_of, None, reverse, Isa::Scalar);
+            let best = pass(&volume, &params, &p2_of, None, reverse, Isa::detect());
+            assert_eq!(scalar, best);
         }
     }
 

@@ -39,7 +39,7 @@ macro_rules! kernels {
                 $(#[$doc])*
                 #[inline]
                 #[allow(clippy::too_many_arguments)]
-                pub fn $name(self, $($arg: $ty),*) $(-> $ret)? {
+                pub(crate) fn $name(self, $($arg: $ty),*) $(-> $ret)? {
                     #[inline(always)]
                     #[allow(clippy::too_many_arguments)]
                     fn generic($($arg: $ty),*) $(-> $ret)? $body
@@ -85,45 +85,23 @@ kernels! {
         }
     }
 
-    /// One pixel of semi-global aggregation along four paths at once. For
-    /// path p, `prev[p]` holds the previous pixel's path costs in lanes 1..=n
-    /// (lane 0 and n + 1 are large sentinels), `prev_min[p]` their minimum; the
-    /// new path costs go to lanes 1..=n of `out[p]`, their (saturating) sum
-    /// over paths to `sum`, and the new minima are returned. `cost` has the n
-    /// matching costs; `pad` is added to every new cost (0, or a sentinel for
-    /// lanes past the disparity count, which then never win).
-    fn sgm_pixel4(
-        cost: &[u8],
-        pad: &[u16],
-        prev: [&[u16]; 4],
-        prev_min: [u16; 4],
-        p1: u16,
-        p2: [u16; 4],
-        out: [&mut [u16]; 4],
-        sum: &mut [u16],
-    ) -> [u16; 4] {
-        sgm_pixel_body(cost, pad, prev, prev_min, p1, p2, out, sum)
-    }
-
-    /// [`Isa::sgm_pixel4`] for two paths.
-    fn sgm_pixel2(
-        cost: &[u8],
-        pad: &[u16],
-        prev: [&[u16]; 2],
-        prev_min: [u16; 2],
-        p1: u16,
-        p2: [u16; 2],
-        out: [&mut [u16]; 2],
-        sum: &mut [u16],
-    ) -> [u16; 2] {
-        sgm_pixel_body(cost, pad, prev, prev_min, p1, p2, out, sum)
+    /// One row of a semi-global aggregation pass ([`super::sgm::row_body`]).
+    fn sgm_row(job: &mut super::sgm::RowJob<'_>) {
+        super::sgm::row_body(job)
     }
 }
 
 /// The recurrence of Hirschmüller's semi-global matching for one pixel:
 /// `L(k) = C(k) + min(L'(k), L'(k-1) + P1, L'(k+1) + P1, min L' + P2) - min L'`.
+/// For path p, `prev[p]` holds the previous pixel's path costs in lanes
+/// 1..=n (lane 0 and n + 1 are large sentinels), `prev_min[p]` their minimum;
+/// the new path costs go to lanes 1..=n of `out[p]`, their (saturating) sum
+/// over paths to `sum`, and the new minima are returned. `cost` has the n
+/// matching costs; `pad` is added to every new cost (0, or a sentinel for
+/// lanes past the disparity count, which then never win).
 #[inline(always)]
-fn sgm_pixel_body<const N: usize>(
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn sgm_pixel_body<const N: usize>(
     cost: &[u8],
     pad: &[u16],
     prev: [&[u16]; N],
@@ -167,7 +145,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn both_builds_agree() {
+    fn kernels_by_hand() {
         let isa = Isa::detect();
         let cost: Vec<u8> = (0..37).map(|k| ((k * 29) % 41) as u8).collect();
         let big = 16383u16;
@@ -178,33 +156,30 @@ mod tests {
         };
         let prev = [mk(3), mk(7), mk(11), mk(13)];
         let mins = prev.clone().map(|p| *p[1..38].iter().min().unwrap());
-        let run = |isa: Isa| {
-            let mut outs = [
-                vec![0u16; 39],
-                vec![0u16; 39],
-                vec![0u16; 39],
-                vec![0u16; 39],
-            ];
-            let mut sum = vec![0u16; 37];
-            let [a, b, c, d] = &mut outs;
-            let m = isa.sgm_pixel4(
-                &cost,
-                &[0u16; 37],
-                [&prev[0], &prev[1], &prev[2], &prev[3]],
-                mins,
-                8,
-                [100, 90, 80, 70],
-                [a, b, c, d],
-                &mut sum,
-            );
-            (outs, sum, m)
-        };
-        let (s, v) = (run(Isa::Scalar), run(isa));
-        assert_eq!(s, v);
+        let mut outs = [
+            vec![0u16; 39],
+            vec![0u16; 39],
+            vec![0u16; 39],
+            vec![0u16; 39],
+        ];
+        let mut sum = vec![0u16; 37];
+        let [a, b, c, d] = &mut outs;
+        let new_mins = sgm_pixel_body(
+            &cost,
+            &[0u16; 37],
+            [&prev[0], &prev[1], &prev[2], &prev[3]],
+            mins,
+            8,
+            [100, 90, 80, 70],
+            [a, b, c, d],
+            &mut sum,
+        );
         // By hand for path 0, k = 0: min(L'(0), L'(1) + P1, minL' + P2) etc.
         let pr = &prev[0];
         let m = pr[1].min(pr[2] + 8).min(mins[0] + 100);
-        assert_eq!(s.0[0][1], cost[0] as u16 + m - mins[0]);
+        assert_eq!(outs[0][1], cost[0] as u16 + m - mins[0]);
+        assert_eq!(new_mins[0], *outs[0][1..38].iter().min().unwrap());
+        assert_eq!(sum[5], (0..4).map(|p| outs[p][6]).sum::<u16>());
 
         let mut codes = vec![0u64; 5];
         isa.census_bits(&mut codes, &[1, 5, 3, 9, 0], &[2, 2, 2, 2, 2]);

@@ -93,7 +93,7 @@ impl Default for SgmConfig {
             max_memory_mb: 4096,
             refine: Some(RefineParams {
                 half_window: 4,
-                iterations: 3,
+                iterations: 2,
                 max_change_px: 1.0,
             }),
             max_cost_fraction: 1.0,

@@ -140,7 +140,7 @@ fn refine_params(params: &Params) -> Result<Option<RefineParams>, OpError> {
     }
     Ok(Some(RefineParams {
         half_window: window / 2,
-        iterations: 3,
+        iterations: 2,
         max_change_px: 1.0,
     }))
 }

@@ -15,6 +15,7 @@
 //! products of the left window with the right gradient are summed per pixel.
 
 use super::pair::GreyImage;
+use super::simd::Isa;
 use rayon::prelude::*;
 
 /// Largest window side the refinement supports, px.
@@ -118,6 +119,7 @@ pub fn refine_disparity(
         }
     }
     let n = (side * side) as f64;
+    let isa = Isa::detect();
     disparity
         .par_chunks_mut(w)
         .enumerate()
@@ -147,6 +149,7 @@ pub fn refine_disparity(
                 let sl = sum_l.window(x - r, side);
                 let mut d = d0 as f64;
                 let mut ok = true;
+                let mut cached = (usize::MAX, (0f32, 0f32));
                 for _ in 0..params.iterations {
                     // The window's right samples start at c + t (c integer).
                     let xs = x as f64 - d - r as f64;
@@ -157,22 +160,13 @@ pub fn refine_disparity(
                     }
                     let (c, t) = (cf as usize, xs - cf);
                     let u = 1.0 - t;
-                    // Left window against the right gradient at c and c + 1,
-                    // accumulated per column so the loop is elementwise
-                    // (vector code) rather than one long chain of additions.
-                    let (mut acc0, mut acc1) = ([0f32; MAX_SIDE], [0f32; MAX_SIDE]);
-                    for j in 0..side {
-                        let base = (y0 + j) * w;
-                        let l = &lf[base + x - r..base + x - r + side];
-                        let g0 = &gx[base + c..base + c + side];
-                        let g1 = &gx[base + c + 1..base + c + 1 + side];
-                        for i in 0..side {
-                            acc0[i] += g0[i] * l[i];
-                            acc1[i] += g1[i] * l[i];
-                        }
+                    // Left window against the right gradient at c and c + 1
+                    // (the same c as the last step needs no new sums).
+                    if cached.0 != c {
+                        let dots = isa.window_dots(&lf, &gx, w, x - r, c, y0, side);
+                        cached = (c, dots);
                     }
-                    let g0l: f32 = acc0[..side].iter().sum();
-                    let g1l: f32 = acc1[..side].iter().sum();
+                    let (g0l, g1l) = cached.1;
                     let s_r = sl - u * sum_r.window(c, side) - t * sum_r.window(c + 1, side);
                     let s_g = u * sum_g.window(c, side) + t * sum_g.window(c + 1, side);
                     let s_gg = u * u * sum_gg.window(c, side)

@@ -85,6 +85,36 @@ kernels! {
         }
     }
 
+    /// Sums over a `side x side` window (rows `y0..`) of the left image
+    /// `left` (columns from `x_left`) times the gradient `grad` (columns from
+    /// `c`, and from `c + 1`), images `w` px wide: the two products the
+    /// sub-pixel refinement cannot take from prefix sums. Accumulated per
+    /// column so the loop is elementwise vector code, not one addition chain.
+    fn window_dots(
+        left: &[f32],
+        grad: &[f32],
+        w: usize,
+        x_left: usize,
+        c: usize,
+        y0: usize,
+        side: usize,
+    ) -> (f32, f32) {
+        const MAX: usize = 32;
+        let side = side.min(MAX - 1);
+        let (mut acc0, mut acc1) = ([0f32; MAX], [0f32; MAX]);
+        for j in 0..side {
+            let base = (y0 + j) * w;
+            let l = &left[base + x_left..base + x_left + side];
+            let g0 = &grad[base + c..base + c + side];
+            let g1 = &grad[base + c + 1..base + c + 1 + side];
+            for i in 0..side {
+                acc0[i] += g0[i] * l[i];
+                acc1[i] += g1[i] * l[i];
+            }
+        }
+        (acc0[..side].iter().sum(), acc1[..side].iter().sum())
+    }
+
     /// One row of a semi-global aggregation pass ([`super::sgm::row_body`]).
     fn sgm_row(job: &mut super::sgm::RowJob<'_>) {
         super::sgm::row_body(job)

@@ -141,8 +141,8 @@ pub fn refine_disparity(
                 sum_g_r1,
                 sum_g1_r,
             ] = band_sums(&lf, &rf, &gx, w, y0, side);
-            for x in r..w - r {
-                let d0 = row[x];
+            for (x, out) in row.iter_mut().enumerate().take(w - r).skip(r) {
+                let d0 = *out;
                 if d0.is_nan() {
                     continue;
                 }
@@ -193,7 +193,7 @@ pub fn refine_disparity(
                     }
                 }
                 if ok {
-                    row[x] = d as f32;
+                    *out = d as f32;
                     refined += 1;
                 }
             }

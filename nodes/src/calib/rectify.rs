@@ -207,21 +207,15 @@ pub fn remap(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::{Point3, Translation3, UnitQuaternion};
+    use nalgebra::Point3;
 
     #[test]
     fn corresponding_points_share_a_row_after_rectification() {
-        // The project's rig, knocked slightly out of line (a roll and a vertical
-        // offset) so rectification has work to do.
         let crate::phantom::Rig {
             left,
             right,
-            left_to_right,
-        } = crate::phantom::Rig::paper_rig();
-        let rig = Isometry3::from_parts(
-            Translation3::new(0.0, 0.4, 0.0),
-            UnitQuaternion::from_euler_angles(0.01, 0.0, -0.004),
-        ) * left_to_right;
+            left_to_right: rig,
+        } = crate::phantom::Rig::misaligned_paper_rig();
         for alpha in [0.0, 0.5, 1.0] {
             let rect = rectify(&left, &right, &rig, alpha);
             let mut worst: f64 = 0.0;

@@ -2,12 +2,11 @@
 //! holding disparity times a scale, as Middlebury and KITTI store them) and
 //! `io.write_disparity` (a colour-mapped PNG with a legend in px, and a PFM).
 
-use fusegraph_engine::value::{Disparity, PathValue};
+use fusegraph_engine::value::Disparity;
 use fusegraph_engine::{
     Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType, path_value,
 };
 use std::path::Path;
-use std::sync::Arc;
 
 /// The first `n` whitespace-separated header tokens of a PNM-style file
 /// (`#` comments skipped) and the offset of the data, which starts after the
@@ -362,16 +361,7 @@ impl Op for ReadDisparityOp {
     }
 
     fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
-        let dir: Option<Arc<PathValue>> = inputs.optional("dir")?;
-        let path = match (params.optional_path("path")?, dir) {
-            (Some(p), None) => p,
-            (None, Some(d)) => d.path.join(params.string("file")?),
-            _ => {
-                return Err(OpError::invalid(
-                    "give the `path` parameter, or the `dir` input and the `file` parameter",
-                ));
-            }
-        };
+        let path = super::images::source_file(inputs, params)?;
         let d = read_disparity(
             &path,
             params.float("scale")?,

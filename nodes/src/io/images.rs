@@ -76,6 +76,19 @@ pub fn side_by_side(
     Ok((out, w, h))
 }
 
+/// The file a reader op reads: its `path` parameter, or its `dir` input joined
+/// with its `file` parameter (exactly one of the two).
+pub(crate) fn source_file(inputs: &Inputs, params: &Params) -> Result<std::path::PathBuf, OpError> {
+    let dir: Option<Arc<PathValue>> = inputs.optional("dir")?;
+    match (params.optional_path("path")?, dir) {
+        (Some(p), None) => Ok(p),
+        (None, Some(d)) => Ok(d.path.join(params.string("file")?)),
+        _ => Err(OpError::invalid(
+            "give the `path` parameter, or the `dir` input and the `file` parameter",
+        )),
+    }
+}
+
 pub(crate) struct ReadImageOp(OpSpec);
 
 impl ReadImageOp {
@@ -110,16 +123,7 @@ impl Op for ReadImageOp {
         &self.0
     }
     fn run(&self, inputs: &Inputs, params: &Params, _: &mut RunCtx) -> Result<Outputs, OpError> {
-        let dir: Option<Arc<PathValue>> = inputs.optional("dir")?;
-        let path = match (params.optional_path("path")?, dir) {
-            (Some(p), None) => p,
-            (None, Some(d)) => d.path.join(params.string("file")?),
-            _ => {
-                return Err(OpError::invalid(
-                    "give the `path` parameter, or the `dir` input and the `file` parameter",
-                ));
-            }
-        };
+        let path = source_file(inputs, params)?;
         Ok(Outputs::new().with("image", load_image(&path)?))
     }
 }

@@ -62,6 +62,21 @@ impl Rig {
         }
     }
 
+    /// The paper rig knocked slightly out of line (a roll and a vertical
+    /// offset of the right camera), so rectification has work to do: a test
+    /// fixture for rectification and triangulation.
+    #[cfg(test)]
+    pub(crate) fn misaligned_paper_rig() -> Self {
+        let rig = Self::paper_rig();
+        Rig {
+            left_to_right: Isometry3::from_parts(
+                Translation3::new(0.0, 0.4, 0.0),
+                UnitQuaternion::from_euler_angles(0.01, 0.0, -0.004),
+            ) * rig.left_to_right,
+            ..rig
+        }
+    }
+
     /// The right camera's pose given the left camera's (both camera-to-world).
     pub fn right_pose(&self, left_to_world: &Isometry3<f64>) -> Isometry3<f64> {
         left_to_world * self.left_to_right.inverse()

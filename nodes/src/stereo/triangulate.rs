@@ -34,19 +34,14 @@ pub fn point_from_disparity(
 mod tests {
     use super::*;
     use crate::calib::rectify;
-    use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 
     #[test]
     fn inverts_a_projection_to_1e_9() {
         let crate::phantom::Rig {
             left,
             right,
-            left_to_right,
-        } = crate::phantom::Rig::paper_rig();
-        let rig = Isometry3::from_parts(
-            Translation3::new(0.0, 0.3, 0.2),
-            UnitQuaternion::from_euler_angles(0.006, 0.0, -0.003),
-        ) * left_to_right;
+            left_to_right: rig,
+        } = crate::phantom::Rig::misaligned_paper_rig();
         let rect = rectify(&left, &right, &rig, 0.0);
         for x in [-90.0, 0.0, 70.0] {
             for y in [-60.0, 15.0, 45.0] {

@@ -11,8 +11,10 @@ use super::pair::{DisparityRange, GreyImage};
 use super::simd::Isa;
 use rayon::prelude::*;
 
-/// Costs of every pixel and disparity: `data[(y * width + x) * count + k]` is
-/// the cost of matching left pixel (x, y) with right pixel (x - min - k, y).
+/// Costs of every pixel and disparity: `data[(y * width + x) * lanes + k]` is
+/// the cost of matching left pixel (x, y) with right pixel (x - min - k, y),
+/// for k below the disparity count (the lanes after it are padding, so a
+/// pixel's costs fill whole vectors).
 /// Where the right pixel falls outside the image the cost is [`CostVolume::max_cost`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct CostVolume {
@@ -24,17 +26,36 @@ pub struct CostVolume {
     pub range: DisparityRange,
     /// Largest cost any pixel can have (and the cost of impossible matches).
     pub max_cost: u8,
+    /// Entries per pixel in `data` (at least the disparity count).
+    pub lanes: usize,
     /// Costs, `[y][x][k]`.
     pub data: Vec<u8>,
 }
 
 impl CostVolume {
+    /// A volume of `count` costs per pixel, unpadded.
+    pub fn unpadded(
+        width: usize,
+        height: usize,
+        range: DisparityRange,
+        max_cost: u8,
+        data: Vec<u8>,
+    ) -> Self {
+        CostVolume {
+            width,
+            height,
+            range,
+            max_cost,
+            lanes: range.count,
+            data,
+        }
+    }
+
     /// The costs of pixel (x, y), one per disparity.
     #[inline]
     pub fn pixel(&self, x: usize, y: usize) -> &[u8] {
-        let n = self.range.count;
-        let i = (y * self.width + x) * n;
-        &self.data[i..i + n]
+        let i = (y * self.width + x) * self.lanes;
+        &self.data[i..i + self.range.count]
     }
 }
 
@@ -93,27 +114,31 @@ pub fn census_costs(
         || census_transform(right, win_w, win_h, isa),
     );
     let (w, h, n) = (left.width, left.height, range.count);
+    let lanes = super::sgm::lanes_for(n);
     let max_cost = (win_w * win_h - 1) as u8;
-    let mut data = vec![0u8; w * h * n];
-    data.par_chunks_mut(w * n).enumerate().for_each(|(y, out)| {
-        let (l, r) = (&cl[y * w..(y + 1) * w], &cr[y * w..(y + 1) * w]);
-        for x in 0..w {
-            let costs = &mut out[x * n..(x + 1) * n];
-            // Valid k: 0 <= x - min - k < w.
-            let (k_lo, k_hi) = valid_ks(x, w, range);
-            costs[..k_lo].fill(max_cost);
-            costs[k_hi..].fill(max_cost);
-            if k_lo < k_hi {
-                let xr_first = (x as i64 - range.min_px as i64 - k_lo as i64) as usize;
-                isa.hamming_descending(&mut costs[k_lo..k_hi], l[x], &r[..=xr_first]);
+    let mut data = vec![0u8; w * h * lanes];
+    data.par_chunks_mut(w * lanes)
+        .enumerate()
+        .for_each(|(y, out)| {
+            let (l, r) = (&cl[y * w..(y + 1) * w], &cr[y * w..(y + 1) * w]);
+            for x in 0..w {
+                let costs = &mut out[x * lanes..x * lanes + n];
+                // Valid k: 0 <= x - min - k < w.
+                let (k_lo, k_hi) = valid_ks(x, w, range);
+                costs[..k_lo].fill(max_cost);
+                costs[k_hi..].fill(max_cost);
+                if k_lo < k_hi {
+                    let xr_first = (x as i64 - range.min_px as i64 - k_lo as i64) as usize;
+                    isa.hamming_descending(&mut costs[k_lo..k_hi], l[x], &r[..=xr_first]);
+                }
             }
-        }
-    });
+        });
     CostVolume {
         width: w,
         height: h,
         range,
         max_cost,
+        lanes,
         data,
     }
 }
@@ -175,13 +200,7 @@ pub fn bt_costs(
         }
     });
     let data = box_mean(&raw, w, h, n, window);
-    CostVolume {
-        width: w,
-        height: h,
-        range,
-        max_cost: 255,
-        data,
-    }
+    CostVolume::unpadded(w, h, range, 255, data)
 }
 
 /// Mean of every `[y][x][k]` cost over a `window x window` block of pixels

@@ -198,8 +198,10 @@ fn run_pass(
             ];
         }
         h_prev[1..=n].fill(0);
+        let per_pixel = volume.lanes;
         let mut job = RowJob {
-            cost_row: &volume.data[y * w * n..(y + 1) * w * n],
+            cost_row: &volume.data[y * w * per_pixel..(y + 1) * w * per_pixel],
+            cost_stride: per_pixel,
             n,
             lanes,
             vertical_paths,
@@ -225,8 +227,10 @@ fn run_pass(
 
 /// One row of a pass: everything [`row_body`] reads and writes.
 pub(crate) struct RowJob<'a> {
-    /// The row's matching costs, `[x][k]`.
+    /// The row's matching costs, `[x][k]`, `cost_stride` per pixel.
     pub cost_row: &'a [u8],
+    /// Costs per pixel in `cost_row` (the lanes when the volume is padded).
+    pub cost_stride: usize,
     /// Disparities.
     pub n: usize,
     /// Lanes per pixel (n rounded up to whole vectors).
@@ -269,8 +273,13 @@ pub(crate) fn row_body(job: &mut RowJob<'_>) {
     let mut h_min = 0u16;
     for i in 0..w {
         let x = if job.reverse { w - 1 - i } else { i };
-        job.cost_lanes[..n].copy_from_slice(&job.cost_row[x * n..(x + 1) * n]);
-        let cost = &job.cost_lanes[..];
+        let at_x = x * job.cost_stride;
+        let cost = if job.cost_stride >= lanes {
+            &job.cost_row[at_x..at_x + lanes]
+        } else {
+            job.cost_lanes[..n].copy_from_slice(&job.cost_row[at_x..at_x + n]);
+            &job.cost_lanes[..]
+        };
         let sum = &mut job.sum_row[x * lanes..(x + 1) * lanes];
         let p2 = job.p2[i];
         let at = |path: usize, px: usize| path * plane + px * stride;
@@ -477,13 +486,13 @@ mod tests {
         let data: Vec<u8> = (0..w * h * n)
             .map(|i| ((i * 37 + i / 5) % 23) as u8)
             .collect();
-        let volume = CostVolume {
-            width: w,
-            height: h,
-            range: DisparityRange::new(0, n as i32 - 1, w).unwrap(),
-            max_cost: 23,
-            data: data.clone(),
-        };
+        let volume = CostVolume::unpadded(
+            w,
+            h,
+            DisparityRange::new(0, n as i32 - 1, w).unwrap(),
+            23,
+            data.clone(),
+        );
         let params = SgmParams {
             p1: 3,
             p2: 20,
@@ -519,19 +528,42 @@ mod tests {
     }
 
     #[test]
+    fn padded_and_unpadded_volumes_agree() {
+        let (w, h) = (40usize, 12usize);
+        let img = |seed: usize| GreyImage {
+            width: w,
+            height: h,
+            data: (0..w * h)
+                .map(|i| ((i * 7919 + seed) % 251) as u8)
+                .collect(),
+        };
+        let range = DisparityRange::new(0, 20, w).unwrap();
+        let padded = super::super::cost::census_costs(&img(1), &img(5), range, 5, 5);
+        assert_eq!(padded.lanes, 32);
+        let data: Vec<u8> = (0..w * h)
+            .flat_map(|i| padded.pixel(i % w, i / w).to_vec())
+            .collect();
+        let plain = CostVolume::unpadded(w, h, range, padded.max_cost, data);
+        let params = SgmParams {
+            p1: 3,
+            p2: 20,
+            paths: Paths::Eight,
+            p2_gamma: 0.0,
+        };
+        assert_eq!(
+            aggregate(&padded, &params, None),
+            aggregate(&plain, &params, None)
+        );
+    }
+
+    #[test]
     fn scalar_and_vector_builds_agree() {
         let (w, h) = (23usize, 9usize);
         let range = DisparityRange::new(0, 20, w).unwrap();
         let data: Vec<u8> = (0..w * h * 21)
             .map(|i| ((i * 40503) >> 5) as u8 % 50)
             .collect();
-        let volume = CostVolume {
-            width: w,
-            height: h,
-            range,
-            max_cost: 50,
-            data,
-        };
+        let volume = CostVolume::unpadded(w, h, range, 50, data);
         let params = SgmParams {
             p1: 5,
             p2: 40,
@@ -554,13 +586,7 @@ mod tests {
             let data: Vec<u8> = (0..w * h * n)
                 .map(|i| ((i * 2654435761) >> 7) as u8 % 40)
                 .collect();
-            let volume = CostVolume {
-                width: w,
-                height: h,
-                range,
-                max_cost: 40,
-                data,
-            };
+            let volume = CostVolume::unpadded(w, h, range, 40, data);
             let guide = GreyImage {
                 width: w,
                 height: h,
@@ -601,13 +627,13 @@ mod tests {
     fn eight_paths_include_the_diagonals() {
         let (w, h, n) = (6usize, 6usize, 4usize);
         let data: Vec<u8> = (0..w * h * n).map(|i| ((i * 13 + 7) % 17) as u8).collect();
-        let volume = CostVolume {
-            width: w,
-            height: h,
-            range: DisparityRange::new(0, n as i32 - 1, w).unwrap(),
-            max_cost: 17,
-            data: data.clone(),
-        };
+        let volume = CostVolume::unpadded(
+            w,
+            h,
+            DisparityRange::new(0, n as i32 - 1, w).unwrap(),
+            17,
+            data.clone(),
+        );
         let agg = aggregate(
             &volume,
             &SgmParams {

@@ -168,34 +168,35 @@ fn run_pass(
     // `on_row` when the row is done.
     let mut sum_row = vec![0u16; w * lanes];
     let p1 = params.p1;
-    // P2 from the pixel at pass position (i, j) to its neighbour at (i + di, j + dj).
-    let actual = |i: usize, j: usize| {
-        if reverse {
-            (w - 1 - i, h - 1 - j)
-        } else {
-            (i, j)
-        }
-    };
-    let p2_towards = |i: usize, j: usize, di: isize, dj: isize| -> u16 {
-        let Some(g) = guide else { return params.p2 };
-        let (ni, nj) = (i as isize + di, j as isize + dj);
-        if ni < 0 || nj < 0 || ni >= w as isize || nj >= h as isize {
-            return params.p2;
-        }
-        let (x, y) = actual(i, j);
-        let (nx, ny) = actual(ni as usize, nj as usize);
-        p2_of[g.at(x, y).abs_diff(g.at(nx, ny)) as usize]
-    };
     let mut p2_row = vec![[params.p2; 4]; w];
     for j in 0..h {
         let y = if reverse { h - 1 - j } else { j };
-        for (i, p2) in p2_row.iter_mut().enumerate() {
-            *p2 = [
-                p2_towards(i, j, -1, 0),
-                p2_towards(i, j, 0, -1),
-                p2_towards(i, j, -1, -1),
-                p2_towards(i, j, 1, -1),
-            ];
+        if let Some(g) = guide {
+            // P2 towards each path's previous pixel: horizontal (x + dx, y),
+            // vertical (x, y + dy), diagonals (x + dx, y + dy) and (x - dx, y + dy),
+            // with dx, dy pointing back along the pass.
+            let row = g.row(y);
+            let above = (j > 0).then(|| g.row(if reverse { y + 1 } else { y - 1 }));
+            let step = |a: u8, b: u8| p2_of[a.abs_diff(b) as usize];
+            for (i, p2) in p2_row.iter_mut().enumerate() {
+                let x = if reverse { w - 1 - i } else { i };
+                let back = if reverse { x + 1 } else { x.wrapping_sub(1) };
+                let ahead = if reverse { x.wrapping_sub(1) } else { x + 1 };
+                let here = row[x];
+                *p2 = [params.p2; 4];
+                if back < w {
+                    p2[0] = step(here, row[back]);
+                }
+                if let Some(up) = above {
+                    p2[1] = step(here, up[x]);
+                    if back < w {
+                        p2[2] = step(here, up[back]);
+                    }
+                    if ahead < w {
+                        p2[3] = step(here, up[ahead]);
+                    }
+                }
+            }
         }
         h_prev[1..=n].fill(0);
         let per_pixel = volume.lanes;
@@ -455,8 +456,14 @@ mod tests {
 
     /// Direct evaluation of one path's recurrence, for comparison.
     fn path_costs(costs: &[Vec<u16>], p1: u16, p2: u16) -> Vec<Vec<u16>> {
+        path_costs_with(costs, p1, |_| p2)
+    }
+
+    /// The recurrence with P2 of the step into element t given by `p2_at(t)`.
+    fn path_costs_with(costs: &[Vec<u16>], p1: u16, p2_at: impl Fn(usize) -> u16) -> Vec<Vec<u16>> {
         let mut out: Vec<Vec<u16>> = Vec::new();
-        for c in costs {
+        for (t, c) in costs.iter().enumerate() {
+            let p2 = p2_at(t);
             let l = match out.last() {
                 None => c.clone(),
                 Some(prev) => {
@@ -523,6 +530,92 @@ mod tests {
                 agg.total_row(y, &mut got);
                 let l = agg.lanes;
                 assert_eq!(&got[x * l..x * l + n], &total[..], "pixel ({x}, {y})");
+            }
+        }
+    }
+
+    #[test]
+    fn p2_falls_across_the_guides_edges() {
+        let (w, h, n) = (6usize, 5usize, 5usize);
+        let data: Vec<u8> = (0..w * h * n)
+            .map(|i| ((i * 29 + i / 3) % 19) as u8)
+            .collect();
+        let volume = CostVolume::unpadded(
+            w,
+            h,
+            DisparityRange::new(0, 4, w).unwrap(),
+            19,
+            data.clone(),
+        );
+        let guide = GreyImage {
+            width: w,
+            height: h,
+            data: (0..w * h).map(|i| ((i * 53) % 97) as u8).collect(),
+        };
+        let params = SgmParams {
+            p1: 2,
+            p2: 30,
+            paths: Paths::Four,
+            p2_gamma: 8.0,
+        };
+        let p2_of = p2_table(&params, Some(&guide));
+        assert!(p2_of[0] == 30 && p2_of[40] < 10 && p2_of[255] >= 3);
+        let agg = aggregate(&volume, &params, Some(&guide));
+        let c = |x: usize, y: usize| -> Vec<u16> {
+            data[(y * w + x) * n..(y * w + x + 1) * n]
+                .iter()
+                .map(|&v| v as u16)
+                .collect()
+        };
+        let g = |x: usize, y: usize| guide.at(x, y);
+        let step = |a: u8, b: u8| p2_of[a.abs_diff(b) as usize];
+        for y in 0..h {
+            for x in 0..w {
+                let row: Vec<_> = (0..w).map(|xx| c(xx, y)).collect();
+                let col: Vec<_> = (0..h).map(|yy| c(x, yy)).collect();
+                let rev = |v: &Vec<Vec<u16>>| v.iter().rev().cloned().collect::<Vec<_>>();
+                let lr = path_costs_with(&row, 2, |t| {
+                    if t > 0 {
+                        step(g(t, y), g(t - 1, y))
+                    } else {
+                        30
+                    }
+                })[x]
+                    .clone();
+                let rl = path_costs_with(&rev(&row), 2, |t| {
+                    if t > 0 {
+                        step(g(w - 1 - t, y), g(w - t, y))
+                    } else {
+                        30
+                    }
+                })[w - 1 - x]
+                    .clone();
+                let tb = path_costs_with(&col, 2, |t| {
+                    if t > 0 {
+                        step(g(x, t), g(x, t - 1))
+                    } else {
+                        30
+                    }
+                })[y]
+                    .clone();
+                let bt = path_costs_with(&rev(&col), 2, |t| {
+                    if t > 0 {
+                        step(g(x, h - 1 - t), g(x, h - t))
+                    } else {
+                        30
+                    }
+                })[h - 1 - y]
+                    .clone();
+                let mut got = Vec::new();
+                agg.total_row(y, &mut got);
+                let l = agg.lanes;
+                for k in 0..n {
+                    assert_eq!(
+                        got[x * l + k],
+                        lr[k] + rl[k] + tb[k] + bt[k],
+                        "pixel ({x}, {y}) k {k}"
+                    );
+                }
             }
         }
     }

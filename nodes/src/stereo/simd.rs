@@ -152,20 +152,26 @@ pub(crate) fn sgm_pixel_body<const N: usize>(
         let out = &mut out[1..n + 1];
         let (floor, base) = (prev_min[p], prev_min[p] + p2[p]);
         let mut lowest = u16::MAX;
-        for k in 0..n {
-            let m = same[k].min(below[k].min(above[k]) + p1).min(base);
-            let v = cost[k] as u16 + m - floor + pad[k];
-            out[k] = v;
-            lowest = lowest.min(v);
-        }
-        new_min[p] = lowest;
+        // The first path sets the sum, the others add to it, in the same loop
+        // (a separate copy would be a call to memcpy per pixel).
         if p == 0 {
-            sum.copy_from_slice(out);
+            for k in 0..n {
+                let m = same[k].min(below[k].min(above[k]) + p1).min(base);
+                let v = cost[k] as u16 + m - floor + pad[k];
+                out[k] = v;
+                sum[k] = v;
+                lowest = lowest.min(v);
+            }
         } else {
-            for (s, &v) in sum.iter_mut().zip(out.iter()) {
-                *s = s.saturating_add(v);
+            for k in 0..n {
+                let m = same[k].min(below[k].min(above[k]) + p1).min(base);
+                let v = cost[k] as u16 + m - floor + pad[k];
+                out[k] = v;
+                sum[k] = sum[k].saturating_add(v);
+                lowest = lowest.min(v);
             }
         }
+        new_min[p] = lowest;
     }
     new_min
 }

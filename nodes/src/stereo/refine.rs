@@ -55,20 +55,36 @@ impl BandSums {
     }
 }
 
-/// The eight window sums Gauss-Newton needs besides the left-gradient
-/// products, over rows `y0 .. y0 + rows`: left, right, gradient, gradient^2,
+/// Column sums over a band of rows of the eight quantities Gauss-Newton needs
+/// besides the left-gradient products: left, right, gradient, gradient^2,
 /// gradient x next gradient, gradient x right, gradient x next right, next
-/// gradient x right ("next" = one column to the right, 0 past the edge).
-fn band_sums(
-    lf: &[f32],
-    rf: &[f32],
-    gx: &[f32],
+/// gradient x right ("next" = one column to the right, 0 past the edge). The
+/// band slides down a row by adding one row and removing another; every term
+/// is a multiple of 1/4 well below 2^50, so the sums stay exact.
+struct ColumnSums<'a> {
+    images: [&'a [f32]; 3],
     w: usize,
-    y0: usize,
-    rows: usize,
-) -> [BandSums; 8] {
-    let mut col = [(); 8].map(|_| vec![0f64; w]);
-    for y in y0..y0 + rows {
+    cols: [Vec<f64>; 8],
+}
+
+impl<'a> ColumnSums<'a> {
+    /// The sums over rows `y0 .. y0 + rows` of the left, right and gradient images.
+    fn band(images: [&'a [f32]; 3], w: usize, y0: usize, rows: usize) -> Self {
+        let mut sums = ColumnSums {
+            images,
+            w,
+            cols: [(); 8].map(|_| vec![0f64; w]),
+        };
+        for y in y0..y0 + rows {
+            sums.add_row(y, 1.0);
+        }
+        sums
+    }
+
+    /// Adds row `y` (sign 1) or removes it (sign -1).
+    fn add_row(&mut self, y: usize, sign: f64) {
+        let w = self.w;
+        let [lf, rf, gx] = self.images;
         let (l, r, g) = (
             &lf[y * w..(y + 1) * w],
             &rf[y * w..(y + 1) * w],
@@ -81,17 +97,17 @@ fn band_sums(
             } else {
                 (0.0, 0.0)
             };
-            col[0][x] += lv;
-            col[1][x] += rv;
-            col[2][x] += gv;
-            col[3][x] += gv * gv;
-            col[4][x] += gv * g1;
-            col[5][x] += gv * rv;
-            col[6][x] += gv * r1;
-            col[7][x] += g1 * rv;
+            let terms = [lv, rv, gv, gv * gv, gv * g1, gv * rv, gv * r1, g1 * rv];
+            for (c, t) in self.cols.iter_mut().zip(terms) {
+                c[x] += sign * t;
+            }
         }
     }
-    col.map(|c| BandSums::from_columns(&c))
+
+    /// Window sums along the band.
+    fn windows(&self) -> [BandSums; 8] {
+        std::array::from_fn(|q| BandSums::from_columns(&self.cols[q]))
+    }
 }
 
 /// Refines every valid (non-NaN) disparity of `disparity` in place. Pixels
@@ -120,86 +136,138 @@ pub fn refine_disparity(
     }
     let n = (side * side) as f64;
     let isa = Isa::detect();
+    // Rows in blocks, so the band of column sums slides from row to row.
+    const BLOCK_ROWS: usize = 16;
+    let images = [&lf[..], &rf[..], &gx[..]];
     disparity
-        .par_chunks_mut(w)
+        .par_chunks_mut(w * BLOCK_ROWS)
         .enumerate()
-        .map(|(y, row)| {
+        .map(|(b, block)| {
             let mut refined = 0;
-            if y < r || y + r >= h {
-                return 0;
-            }
-            let y0 = y - r;
-            // Every window sum that involves only the right image (and the
-            // left image's plain sum), for this band of rows.
-            let [
-                sum_l,
-                sum_r,
-                sum_g,
-                sum_gg,
-                sum_g_g1,
-                sum_g_r,
-                sum_g_r1,
-                sum_g1_r,
-            ] = band_sums(&lf, &rf, &gx, w, y0, side);
-            for (x, out) in row.iter_mut().enumerate().take(w - r).skip(r) {
-                let d0 = *out;
-                if d0.is_nan() {
+            let mut band: Option<ColumnSums> = None;
+            for (k, row) in block.chunks_mut(w).enumerate() {
+                let y = b * BLOCK_ROWS + k;
+                if y < r || y + r >= h {
                     continue;
                 }
-                let sl = sum_l.window(x - r, side);
-                let mut d = d0 as f64;
-                let mut ok = true;
-                let mut cached = (usize::MAX, (0f32, 0f32));
-                for _ in 0..params.iterations {
-                    // The window's right samples start at c + t (c integer).
-                    let xs = x as f64 - d - r as f64;
-                    let cf = xs.floor();
-                    if cf < 0.0 || cf as usize + side + 1 >= w {
-                        ok = false;
-                        break;
+                let y0 = y - r;
+                match &mut band {
+                    Some(sums) => {
+                        sums.add_row(y + r, 1.0);
+                        sums.add_row(y0 - 1, -1.0);
                     }
-                    let (c, t) = (cf as usize, xs - cf);
-                    let u = 1.0 - t;
-                    // Left window against the right gradient at c and c + 1
-                    // (the same c as the last step needs no new sums).
-                    if cached.0 != c {
-                        let dots = isa.window_dots(&lf, &gx, w, x - r, c, y0, side);
-                        cached = (c, dots);
-                    }
-                    let (g0l, g1l) = cached.1;
-                    let s_r = sl - u * sum_r.window(c, side) - t * sum_r.window(c + 1, side);
-                    let s_g = u * sum_g.window(c, side) + t * sum_g.window(c + 1, side);
-                    let s_gg = u * u * sum_gg.window(c, side)
-                        + 2.0 * t * u * sum_g_g1.window(c, side)
-                        + t * t * sum_gg.window(c + 1, side);
-                    let s_gr = u * g0l as f64 + t * g1l as f64
-                        - (u * u * sum_g_r.window(c, side)
-                            + t * u * (sum_g_r1.window(c, side) + sum_g1_r.window(c, side))
-                            + t * t * sum_g_r.window(c + 1, side));
-                    let var_g = s_gg - s_g * s_g / n;
-                    if var_g < 1e-3 * n {
-                        ok = false; // no horizontal texture to align
-                        break;
-                    }
-                    // res(d + delta) ~ res + g delta (I_R is sampled at x - d - delta).
-                    let delta = -(s_gr - s_g * s_r / n) / var_g;
-                    d += delta;
-                    if (d - d0 as f64).abs() > params.max_change_px as f64 {
-                        ok = false;
-                        break;
-                    }
-                    if delta.abs() < 0.005 {
-                        break;
-                    }
+                    None => band = Some(ColumnSums::band(images, w, y0, side)),
                 }
-                if ok {
-                    *out = d as f32;
-                    refined += 1;
-                }
+                let Some(sums) = &band else { continue };
+                refined += refine_row(
+                    row,
+                    r..w - r,
+                    y0,
+                    sums.windows(),
+                    &lf,
+                    &gx,
+                    w,
+                    side,
+                    n,
+                    isa,
+                    params,
+                );
             }
             refined
         })
         .sum()
+}
+
+/// Refines the valid disparities in `columns` of one row (its windows' rows
+/// start at `y0`) with the band's window sums; returns how many it refined.
+#[allow(clippy::too_many_arguments)]
+fn refine_row(
+    row: &mut [f32],
+    columns: std::ops::Range<usize>,
+    y0: usize,
+    sums: [BandSums; 8],
+    lf: &[f32],
+    gx: &[f32],
+    w: usize,
+    side: usize,
+    n: f64,
+    isa: Isa,
+    params: &RefineParams,
+) -> usize {
+    let r = side / 2;
+    let [
+        sum_l,
+        sum_r,
+        sum_g,
+        sum_gg,
+        sum_g_g1,
+        sum_g_r,
+        sum_g_r1,
+        sum_g1_r,
+    ] = sums;
+    let mut refined = 0;
+    for (x, out) in row
+        .iter_mut()
+        .enumerate()
+        .take(columns.end)
+        .skip(columns.start)
+    {
+        let d0 = *out;
+        if d0.is_nan() {
+            continue;
+        }
+        let sl = sum_l.window(x - r, side);
+        let mut d = d0 as f64;
+        let mut ok = true;
+        let mut cached = (usize::MAX, (0f32, 0f32));
+        for _ in 0..params.iterations {
+            // The window's right samples start at c + t (c integer).
+            let xs = x as f64 - d - r as f64;
+            let cf = xs.floor();
+            if cf < 0.0 || cf as usize + side + 1 >= w {
+                ok = false;
+                break;
+            }
+            let (c, t) = (cf as usize, xs - cf);
+            let u = 1.0 - t;
+            // Left window against the right gradient at c and c + 1
+            // (the same c as the last step needs no new sums).
+            if cached.0 != c {
+                let dots = isa.window_dots(lf, gx, w, x - r, c, y0, side);
+                cached = (c, dots);
+            }
+            let (g0l, g1l) = cached.1;
+            let s_r = sl - u * sum_r.window(c, side) - t * sum_r.window(c + 1, side);
+            let s_g = u * sum_g.window(c, side) + t * sum_g.window(c + 1, side);
+            let s_gg = u * u * sum_gg.window(c, side)
+                + 2.0 * t * u * sum_g_g1.window(c, side)
+                + t * t * sum_gg.window(c + 1, side);
+            let s_gr = u * g0l as f64 + t * g1l as f64
+                - (u * u * sum_g_r.window(c, side)
+                    + t * u * (sum_g_r1.window(c, side) + sum_g1_r.window(c, side))
+                    + t * t * sum_g_r.window(c + 1, side));
+            let var_g = s_gg - s_g * s_g / n;
+            if var_g < 1e-3 * n {
+                ok = false; // no horizontal texture to align
+                break;
+            }
+            // res(d + delta) ~ res + g delta (I_R is sampled at x - d - delta).
+            let delta = -(s_gr - s_g * s_r / n) / var_g;
+            d += delta;
+            if (d - d0 as f64).abs() > params.max_change_px as f64 {
+                ok = false;
+                break;
+            }
+            if delta.abs() < 0.005 {
+                break;
+            }
+        }
+        if ok {
+            *out = d as f32;
+            refined += 1;
+        }
+    }
+    refined
 }
 
 #[cfg(test)]

@@ -19,7 +19,7 @@ pub struct StereoRectification {
     pub r2: Matrix3<f64>,
     /// Left rectified projection.
     pub p1: Matrix3x4<f64>,
-    /// Right rectified projection (P2[0][3] = f Tx).
+    /// Right rectified projection (`P2[0][3]` = f Tx).
     pub p2: Matrix3x4<f64>,
     /// Disparity-to-depth matrix.
     pub q: Matrix4<f64>,

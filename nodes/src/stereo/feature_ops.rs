@@ -22,7 +22,7 @@ const KEYPOINT_COLUMNS: [&str; 6] = [
     "laplacian_sign",
 ];
 
-/// A feature table: one row per keypoint, [`KEYPOINT_COLUMNS`] then `d00..d63`
+/// A feature table: one row per keypoint, `KEYPOINT_COLUMNS` then `d00..d63`
 /// (float descriptors; `laplacian_sign` +1 or -1) or `w0..w7` (the 256 bits as
 /// eight 32-bit words, bit k of the descriptor in word k / 32; `laplacian_sign` 0).
 pub fn features_to_table(f: &Features) -> Table {

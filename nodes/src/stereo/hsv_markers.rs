@@ -262,7 +262,7 @@ pub const MAX_BLOBS: usize = 1000;
 /// One-to-one pairs (left index, right index), in left order: of all the
 /// pairings allowed by `p` (same row within the tolerance, positive disparity
 /// inside the optional range, similar area), the one with the most pairs and,
-/// among those, the least total [`pair_cost`] (Hungarian algorithm). Unlike a
+/// among those, the least total `pair_cost` (Hungarian algorithm). Unlike a
 /// greedy choice, two markers on one row cannot steal each other's partner.
 pub fn pair_blobs(
     left: &[Blob],

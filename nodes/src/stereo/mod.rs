@@ -44,7 +44,7 @@ pub use markers_op::BLOB_COLUMNS;
 pub use matching::{FeatureMatch, MatchParams, match_features};
 pub use pair::{DisparityRange, GreyImage, check_pair};
 pub use range::{RangeParams, disparity_range, percentile};
-pub use refine::{RefineParams, refine_disparity};
+pub use refine::{MAX_SIDE, RefineParams, refine_disparity};
 pub use select::{SelectParams, select};
 pub use sgm::{Aggregated, Paths, SgmParams, aggregate};
 pub use simd::Isa;

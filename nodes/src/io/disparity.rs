@@ -2,6 +2,7 @@
 //! holding disparity times a scale, as Middlebury and KITTI store them) and
 //! `io.write_disparity` (a colour-mapped PNG with a legend in px, and a PFM).
 
+use super::images::SourceFileSpec;
 use fusegraph_engine::value::Disparity;
 use fusegraph_engine::{
     Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType, path_value,
@@ -322,20 +323,7 @@ impl ReadDisparityOp {
                 1,
                 "Read a disparity map: PFM (inf = unknown), or 8/16-bit PGM or PNG divided by `scale`",
             )
-            .optional_input(
-                "dir",
-                &[ValueType::Path],
-                "Folder the file is in (else relative to the graph)",
-            )
-            .param(ParamSpec::string(
-                "file",
-                "",
-                "File name (inside `dir` when connected)",
-            ))
-            .param(ParamSpec::optional_path(
-                "path",
-                "File, relative to the graph (instead of dir + file)",
-            ))
+            .with_source_file()
             .param(
                 ParamSpec::float(
                     "scale",

@@ -76,6 +76,32 @@ pub fn side_by_side(
     Ok((out, w, h))
 }
 
+/// The ports and parameters that say which file a reader op reads: a `dir`
+/// input with a `file` name, or a `path`; [`source_file`] resolves them.
+pub(crate) trait SourceFileSpec {
+    /// Adds the `dir` input and the `file` and `path` parameters.
+    fn with_source_file(self) -> Self;
+}
+
+impl SourceFileSpec for OpSpec {
+    fn with_source_file(self) -> Self {
+        self.optional_input(
+            "dir",
+            &[ValueType::Path],
+            "Folder the file is in (else relative to the graph)",
+        )
+        .param(ParamSpec::string(
+            "file",
+            "",
+            "File name (inside `dir` when connected)",
+        ))
+        .param(ParamSpec::optional_path(
+            "path",
+            "File, relative to the graph (instead of dir + file)",
+        ))
+    }
+}
+
 /// The file a reader op reads: its `path` parameter, or its `dir` input joined
 /// with its `file` parameter (exactly one of the two).
 pub(crate) fn source_file(inputs: &Inputs, params: &Params) -> Result<std::path::PathBuf, OpError> {
@@ -99,20 +125,7 @@ impl ReadImageOp {
                 1,
                 "Read an image file (PNG, JPEG, TIFF) as 8-bit RGB",
             )
-            .optional_input(
-                "dir",
-                &[ValueType::Path],
-                "Folder the file is in (else relative to the graph)",
-            )
-            .param(ParamSpec::string(
-                "file",
-                "",
-                "File name (inside `dir` when connected)",
-            ))
-            .param(ParamSpec::optional_path(
-                "path",
-                "File, relative to the graph (instead of dir + file)",
-            ))
+            .with_source_file()
             .output("image", ValueType::Image, "The image"),
         )
     }

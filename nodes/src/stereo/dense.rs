@@ -8,7 +8,6 @@ use super::refine::{RefineParams, refine_disparity};
 use super::select::SelectParams;
 use super::sgm::{SgmParams, aggregate_and_select};
 use super::texture::{flat_windows, noise_sigma};
-use rayon::prelude::*;
 
 /// The pixel matching cost semi-global matching aggregates.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -49,12 +48,6 @@ pub struct SgmConfig {
     /// Sub-pixel refinement on the intensities after selection (`None` keeps
     /// the cost parabola's sub-pixel values).
     pub refine: Option<RefineParams>,
-    /// Invalidate a pixel whose own matching cost at the chosen disparity is
-    /// above this fraction of the largest cost (0..1; 1 = off). Two unrelated
-    /// census codes differ in about half their bits, so a winner costing that
-    /// much was carried in by the smoothness terms from elsewhere: no texture
-    /// of its own (a blank background, glare) supports it.
-    pub max_cost_fraction: f32,
     /// Invalidate pixels whose census window's grey-level spread is below this
     /// multiple of the image's own noise level (no texture to match; 0 = off).
     pub min_texture_snr: f64,
@@ -96,7 +89,6 @@ impl Default for SgmConfig {
                 iterations: 2,
                 max_change_px: 1.0,
             }),
-            max_cost_fraction: 1.0,
             min_texture_snr: 0.0,
         }
     }
@@ -151,15 +143,6 @@ pub fn sgm_disparity(
     let t1 = std::time::Instant::now();
     let mut disparity = aggregate_and_select(&volume, &config.sgm, Some(left), &config.select);
     let t2 = std::time::Instant::now();
-    if config.max_cost_fraction < 1.0 {
-        let limit = config.max_cost_fraction * volume.max_cost as f32;
-        disparity.par_iter_mut().enumerate().for_each(|(i, d)| {
-            let k = (d.round() as i64 - range.min_px as i64).clamp(0, range.count as i64 - 1);
-            if !d.is_nan() && volume.pixel(i % w, i / w)[k as usize] as f32 > limit {
-                *d = f32::NAN;
-            }
-        });
-    }
     drop(volume);
     if config.min_texture_snr > 0.0 {
         let (ww, wh) = match config.cost {
@@ -265,7 +248,6 @@ mod tests {
             speckle_range_px: 1.0,
             max_memory_mb: 1024,
             refine: None,
-            max_cost_fraction: 1.0,
             min_texture_snr: 0.0,
         }
     }

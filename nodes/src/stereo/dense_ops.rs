@@ -225,15 +225,6 @@ impl SgmOp {
             )
             .param(
                 ParamSpec::float(
-                    "max_cost_fraction",
-                    d.max_cost_fraction as f64,
-                    "",
-                    "Invalid where the pixel's own cost at its disparity exceeds this fraction of the largest cost (no texture supports it; 1 = off)",
-                )
-                .range(0.0, 1.0),
-            )
-            .param(
-                ParamSpec::float(
                     "min_texture_snr",
                     d.min_texture_snr,
                     "",
@@ -296,7 +287,6 @@ impl Op for SgmOp {
             speckle_range_px: params.float("speckle_range_px")? as f32,
             max_memory_mb: params.count("max_memory_mb")?,
             refine: refine_params(params)?,
-            max_cost_fraction: params.float("max_cost_fraction")? as f32,
             min_texture_snr: params.float("min_texture_snr")?,
         };
         let data = sgm_disparity(&left, &right, range, &config).map_err(OpError::invalid)?;

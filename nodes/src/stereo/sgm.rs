@@ -66,9 +66,6 @@ pub struct Aggregated {
     pub height: usize,
     /// Disparities.
     pub range: DisparityRange,
-    /// Lanes per pixel in `down` and `up`: the disparity count rounded up to a
-    /// whole number of vectors (the lanes beyond the count hold nothing).
-    pub lanes: usize,
     /// Sum of the top-down pass's paths.
     pub down: Vec<u16>,
     /// Sum of the bottom-up pass's paths.
@@ -76,10 +73,16 @@ pub struct Aggregated {
 }
 
 impl Aggregated {
+    /// Lanes per pixel in `down` and `up`: the disparity count rounded up to a
+    /// whole number of vectors (the lanes beyond the count hold nothing).
+    pub fn lanes(&self) -> usize {
+        lanes_for(self.range.count)
+    }
+
     /// The total aggregated costs of row `y`, `[x][lane]` ([`Aggregated::lanes`]
     /// per pixel), into `out`.
     pub fn total_row(&self, y: usize, out: &mut Vec<u16>) {
-        let len = self.width * self.lanes;
+        let len = self.width * self.lanes();
         let span = y * len..(y + 1) * len;
         out.clear();
         out.extend(
@@ -106,7 +109,6 @@ pub fn aggregate(volume: &CostVolume, params: &SgmParams, guide: Option<&GreyIma
         width: volume.width,
         height: volume.height,
         range: volume.range,
-        lanes: lanes_for(volume.range.count),
         down,
         up,
     }
@@ -454,6 +456,12 @@ fn wait_for<'a>(cell: &'a OnceLock<Vec<u16>>, failed: &AtomicBool) -> Option<&'a
 mod tests {
     use super::*;
 
+    /// The `n` costs of pixel (x, y) of an unpadded `[y][x][k]` volume `w` wide.
+    fn pixel_costs(data: &[u8], w: usize, n: usize, x: usize, y: usize) -> Vec<u16> {
+        let i = (y * w + x) * n;
+        data[i..i + n].iter().map(|&v| v as u16).collect()
+    }
+
     /// Direct evaluation of one path's recurrence, for comparison.
     fn path_costs(costs: &[Vec<u16>], p1: u16, p2: u16) -> Vec<Vec<u16>> {
         path_costs_with(costs, p1, |_| p2)
@@ -507,12 +515,7 @@ mod tests {
             p2_gamma: 0.0,
         };
         let agg = aggregate(&volume, &params, None);
-        let c = |x: usize, y: usize| -> Vec<u16> {
-            data[(y * w + x) * n..(y * w + x + 1) * n]
-                .iter()
-                .map(|&v| v as u16)
-                .collect()
-        };
+        let c = |x: usize, y: usize| pixel_costs(&data, w, n, x, y);
         for y in 0..h {
             for x in 0..w {
                 let mut total = vec![0u16; n];
@@ -528,7 +531,7 @@ mod tests {
                 }
                 let mut got = Vec::new();
                 agg.total_row(y, &mut got);
-                let l = agg.lanes;
+                let l = agg.lanes();
                 assert_eq!(&got[x * l..x * l + n], &total[..], "pixel ({x}, {y})");
             }
         }
@@ -561,12 +564,7 @@ mod tests {
         let p2_of = p2_table(&params, Some(&guide));
         assert!(p2_of[0] == 30 && p2_of[40] < 10 && p2_of[255] >= 3);
         let agg = aggregate(&volume, &params, Some(&guide));
-        let c = |x: usize, y: usize| -> Vec<u16> {
-            data[(y * w + x) * n..(y * w + x + 1) * n]
-                .iter()
-                .map(|&v| v as u16)
-                .collect()
-        };
+        let c = |x: usize, y: usize| pixel_costs(&data, w, n, x, y);
         let g = |x: usize, y: usize| guide.at(x, y);
         let step = |a: u8, b: u8| p2_of[a.abs_diff(b) as usize];
         for y in 0..h {
@@ -608,7 +606,7 @@ mod tests {
                     .clone();
                 let mut got = Vec::new();
                 agg.total_row(y, &mut got);
-                let l = agg.lanes;
+                let l = agg.lanes();
                 for k in 0..n {
                     assert_eq!(
                         got[x * l + k],
@@ -702,7 +700,7 @@ mod tests {
                     w,
                     h,
                     range,
-                    agg.lanes,
+                    agg.lanes(),
                     |y, out: &mut Vec<u16>| agg.total_row(y, out),
                     &select,
                 );
@@ -737,12 +735,7 @@ mod tests {
             },
             None,
         );
-        let c = |x: usize, y: usize| -> Vec<u16> {
-            data[(y * w + x) * n..(y * w + x + 1) * n]
-                .iter()
-                .map(|&v| v as u16)
-                .collect()
-        };
+        let c = |x: usize, y: usize| pixel_costs(&data, w, n, x, y);
         // Pixel (3, 2): its down-right diagonal path starts at (1, 0).
         let (x, y) = (3, 2);
         let diag: Vec<_> = (0..=2).map(|t| c(1 + t, t)).collect();
@@ -757,7 +750,7 @@ mod tests {
         let dl = path_costs(&anti, 2, 9)[2].clone();
         for k in 0..n {
             assert_eq!(
-                agg.down[(y * w + x) * agg.lanes + k],
+                agg.down[(y * w + x) * agg.lanes() + k],
                 lr[k] + tb[k] + expect_dr[k] + dl[k],
                 "k {k}"
             );

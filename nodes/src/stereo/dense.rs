@@ -296,6 +296,23 @@ mod tests {
     }
 
     #[test]
+    fn same_bits_on_any_number_of_threads() {
+        let (w, h) = (96, 64);
+        let (left, right, _) = random_dot_pair(w, h);
+        let range = DisparityRange::new(0, 31, w).unwrap();
+        let config = SgmConfig::default();
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let d = pool.install(|| sgm_disparity(&left, &right, range, &config).unwrap());
+            d.iter().map(|v| v.to_bits()).collect::<Vec<u32>>()
+        };
+        assert_eq!(run(1), run(3));
+    }
+
+    #[test]
     fn refuses_bad_input() {
         let (left, right, _) = random_dot_pair(40, 20);
         let range = DisparityRange::new(0, 15, 40).unwrap();

@@ -81,6 +81,9 @@ pub enum BenchCommand {
         /// Folder for the pairs given to the peers [default: a temporary one].
         #[arg(long)]
         out: Option<std::path::PathBuf>,
+        /// Aggregation paths (4, 5 or 8) instead of stereo.sgm's default.
+        #[arg(long)]
+        paths: Option<i64>,
     },
 }
 
@@ -136,6 +139,7 @@ pub fn run_bench(what: BenchCommand, registry: &Registry) -> anyhow::Result<()> 
             disparities,
             repeat,
             out,
+            paths,
         } => {
             let dir = tempfile::tempdir()?;
             let folder = out.unwrap_or_else(|| dir.path().to_path_buf());
@@ -151,7 +155,7 @@ pub fn run_bench(what: BenchCommand, registry: &Registry) -> anyhow::Result<()> 
                 )?],
                 _ => crate::bench_sgm::default_cases(&folder)?,
             };
-            crate::bench_sgm::run(&cases, repeat, &folder)
+            crate::bench_sgm::run(&cases, repeat, paths, &folder)
         }
     }
 }

@@ -8,7 +8,7 @@ use fusegraph_nodes::camera::isometry_from_matrix;
 use fusegraph_nodes::eval::disparity_errors;
 use fusegraph_nodes::io::{encode_pfm, load_image, read_disparity};
 use fusegraph_nodes::phantom::{PhantomConfig, PhantomSize, ViewScene, generate, true_disparity};
-use fusegraph_nodes::stereo::{DisparityRange, GreyImage, SgmConfig, sgm_disparity};
+use fusegraph_nodes::stereo::{DisparityRange, GreyImage, Paths, SgmConfig, sgm_disparity};
 use std::path::Path;
 use std::time::Instant;
 
@@ -137,10 +137,19 @@ fn phantom_case(dir: &Path) -> anyhow::Result<SgmCase> {
 }
 
 /// Times every case and prints one line each, with the peer's command line.
-pub fn run(cases: &[SgmCase], repeat: usize, folder: &Path) -> anyhow::Result<()> {
-    let config = SgmConfig::default();
+pub fn run(
+    cases: &[SgmCase],
+    repeat: usize,
+    paths: Option<i64>,
+    folder: &Path,
+) -> anyhow::Result<()> {
+    let mut config = SgmConfig::default();
+    if let Some(p) = paths {
+        config.sgm.paths = Paths::from_count(p).map_err(anyhow::Error::msg)?;
+    }
     println!(
-        "bench sgm: stereo.sgm defaults (census 9 x 7, 8 paths, P1 {}, P2 {}, refinement), best of {repeat}; pairs in {}",
+        "bench sgm: stereo.sgm defaults (census 9 x 7, {} paths, P1 {}, P2 {}, refinement), best of {repeat}; pairs in {}",
+        config.sgm.paths.count(),
         config.sgm.p1,
         config.sgm.p2,
         folder.display()

@@ -80,6 +80,10 @@ pub fn census_transform(img: &GreyImage, win_w: usize, win_h: usize, isa: Isa) -
     codes.par_chunks_mut(w).enumerate().for_each(|(y, out)| {
         let centre = img.row(y);
         let mut padded = vec![0u8; w + 2 * rx as usize];
+        // Comparisons are gathered eight to a byte (32 pixels per vector
+        // instruction), then shifted into the codes a byte at a time.
+        let mut byte = vec![0u8; w];
+        let mut bits_in_byte = 0u32;
         for dy in -ry..=ry {
             let yy = (y as isize + dy).clamp(0, h as isize - 1) as usize;
             let row = img.row(yy);
@@ -93,11 +97,162 @@ pub fn census_transform(img: &GreyImage, win_w: usize, win_h: usize, isa: Isa) -
                     continue;
                 }
                 let start = (rx + dx) as usize;
-                isa.census_bits(out, &padded[start..start + w], centre);
+                isa.census_bits(&mut byte, &padded[start..start + w], centre);
+                bits_in_byte += 1;
+                if bits_in_byte == 8 {
+                    isa.shift_in_byte(out, &byte, 8);
+                    bits_in_byte = 0;
+                }
             }
+        }
+        if bits_in_byte > 0 {
+            isa.shift_in_byte(out, &byte, bits_in_byte);
         }
     });
     codes
+}
+
+/// Matching costs one image row at a time: `[x][lane]`, [`CostRows::lanes`]
+/// entries per pixel, of which the first `range().count` are the costs of
+/// disparities `min .. min + count` (the rest padding). Lets semi-global
+/// matching compute costs as it goes instead of holding a whole volume.
+pub trait CostRows: Sync {
+    /// Width, px.
+    fn width(&self) -> usize;
+    /// Height, px.
+    fn height(&self) -> usize;
+    /// Disparities.
+    fn range(&self) -> DisparityRange;
+    /// Entries per pixel in a row (at least the disparity count).
+    fn lanes(&self) -> usize;
+    /// The costs of row `y`, written into `scratch` (`width * lanes` long) or
+    /// borrowed from storage.
+    fn row<'a>(&'a self, y: usize, scratch: &'a mut [u8]) -> &'a [u8];
+}
+
+impl CostRows for CostVolume {
+    fn width(&self) -> usize {
+        self.width
+    }
+    fn height(&self) -> usize {
+        self.height
+    }
+    fn range(&self) -> DisparityRange {
+        self.range
+    }
+    fn lanes(&self) -> usize {
+        self.lanes
+    }
+    fn row<'a>(&'a self, y: usize, _scratch: &'a mut [u8]) -> &'a [u8] {
+        let len = self.width * self.lanes;
+        &self.data[y * len..(y + 1) * len]
+    }
+}
+
+/// Census costs computed on demand from the two images' census codes
+/// (8 bytes per pixel each) rather than stored (one byte per pixel and
+/// disparity).
+#[derive(Debug, Clone)]
+pub struct CensusCosts {
+    left: Vec<u64>,
+    right: Vec<u64>,
+    width: usize,
+    height: usize,
+    range: DisparityRange,
+    lanes: usize,
+    max_cost: u8,
+    isa: Isa,
+}
+
+impl CensusCosts {
+    /// The census codes of a pair over a `win_w x win_h` window (checked by
+    /// [`check_census_window`]).
+    pub fn new(
+        left: &GreyImage,
+        right: &GreyImage,
+        range: DisparityRange,
+        win_w: usize,
+        win_h: usize,
+    ) -> Self {
+        let isa = Isa::detect();
+        let (cl, cr) = rayon::join(
+            || census_transform(left, win_w, win_h, isa),
+            || census_transform(right, win_w, win_h, isa),
+        );
+        CensusCosts {
+            left: cl,
+            right: cr,
+            width: left.width,
+            height: left.height,
+            range,
+            lanes: super::sgm::lanes_for(range.count),
+            max_cost: (win_w * win_h - 1) as u8,
+            isa,
+        }
+    }
+
+    /// Largest cost (the window's bit count; also the cost of impossible matches).
+    pub fn max_cost(&self) -> u8 {
+        self.max_cost
+    }
+
+    /// Every row's costs as a volume.
+    pub fn volume(&self) -> CostVolume {
+        let (w, h, lanes) = (self.width, self.height, self.lanes);
+        let mut data = vec![0u8; w * h * lanes];
+        data.par_chunks_mut(w * lanes)
+            .enumerate()
+            .for_each(|(y, out)| self.fill_row(y, out));
+        CostVolume {
+            width: w,
+            height: h,
+            range: self.range,
+            max_cost: self.max_cost,
+            lanes,
+            data,
+        }
+    }
+
+    fn fill_row(&self, y: usize, out: &mut [u8]) {
+        let (w, n, lanes, range) = (self.width, self.range.count, self.lanes, self.range);
+        let (l, r) = (
+            &self.left[y * w..(y + 1) * w],
+            &self.right[y * w..(y + 1) * w],
+        );
+        for x in 0..w {
+            let (costs, padding) = out[x * lanes..(x + 1) * lanes].split_at_mut(n);
+            padding.fill(0);
+            // Valid k: 0 <= x - min - k < w.
+            let (k_lo, k_hi) = valid_ks(x, w, range);
+            costs[..k_lo].fill(self.max_cost);
+            costs[k_hi..].fill(self.max_cost);
+            if k_lo < k_hi {
+                let xr_first = (x as i64 - range.min_px as i64 - k_lo as i64) as usize;
+                self.isa
+                    .hamming_descending(&mut costs[k_lo..k_hi], l[x], &r[..=xr_first]);
+            }
+        }
+    }
+}
+
+impl CostRows for CensusCosts {
+    fn width(&self) -> usize {
+        self.width
+    }
+    fn height(&self) -> usize {
+        self.height
+    }
+    fn range(&self) -> DisparityRange {
+        self.range
+    }
+    fn lanes(&self) -> usize {
+        self.lanes
+    }
+    fn row<'a>(&'a self, y: usize, scratch: &'a mut [u8]) -> &'a [u8] {
+        let out = &mut scratch[..self.width * self.lanes];
+        self.fill_row(y, out);
+        out
+    }
 }
 
 /// Census costs: Hamming distances between the left and right census codes.
@@ -108,39 +263,7 @@ pub fn census_costs(
     win_w: usize,
     win_h: usize,
 ) -> CostVolume {
-    let isa = Isa::detect();
-    let (cl, cr) = rayon::join(
-        || census_transform(left, win_w, win_h, isa),
-        || census_transform(right, win_w, win_h, isa),
-    );
-    let (w, h, n) = (left.width, left.height, range.count);
-    let lanes = super::sgm::lanes_for(n);
-    let max_cost = (win_w * win_h - 1) as u8;
-    let mut data = vec![0u8; w * h * lanes];
-    data.par_chunks_mut(w * lanes)
-        .enumerate()
-        .for_each(|(y, out)| {
-            let (l, r) = (&cl[y * w..(y + 1) * w], &cr[y * w..(y + 1) * w]);
-            for x in 0..w {
-                let costs = &mut out[x * lanes..x * lanes + n];
-                // Valid k: 0 <= x - min - k < w.
-                let (k_lo, k_hi) = valid_ks(x, w, range);
-                costs[..k_lo].fill(max_cost);
-                costs[k_hi..].fill(max_cost);
-                if k_lo < k_hi {
-                    let xr_first = (x as i64 - range.min_px as i64 - k_lo as i64) as usize;
-                    isa.hamming_descending(&mut costs[k_lo..k_hi], l[x], &r[..=xr_first]);
-                }
-            }
-        });
-    CostVolume {
-        width: w,
-        height: h,
-        range,
-        max_cost,
-        lanes,
-        data,
-    }
+    CensusCosts::new(left, right, range, win_w, win_h).volume()
 }
 
 /// The k (disparity index) whose right pixel x - min - k lies in `0..w`: `lo..hi`.

@@ -182,10 +182,7 @@ impl SgmOp {
             MatchCost::Census { width, height } => (width, height),
             MatchCost::BirchfieldTomasi { .. } => (9, 7),
         };
-        let paths = match d.sgm.paths {
-            Paths::Four => 4,
-            Paths::Eight => 8,
-        };
+        let paths = d.sgm.paths.count();
         SgmOp(
             matcher_spec(
                 "stereo.sgm",
@@ -205,7 +202,12 @@ impl SgmOp {
                 ParamSpec::int("bt_window", 5, "px", "Window the BT cost is averaged over (odd)")
                     .range(1.0, 31.0),
             )
-            .param(ParamSpec::int("paths", paths, "", "Aggregation paths: 4 or 8").range(4.0, 8.0))
+            .param(ParamSpec::int(
+                "paths",
+                paths as i64,
+                "",
+                "Aggregation paths: 5 = one top-down pass (both horizontals, down, the two downward diagonals; fastest, no stored volume); 4 or 8 = two passes (8 adds the upward paths and diagonals)",
+            ).range(4.0, 8.0))
             .param(
                 ParamSpec::int("p1", d.sgm.p1 as i64, "cost", "Penalty for a 1 px disparity step between neighbours")
                     .range(1.0, 3999.0),
@@ -269,11 +271,7 @@ impl Op for SgmOp {
                 window: params.count("bt_window")?,
             },
         };
-        let paths = match params.int("paths")? {
-            4 => Paths::Four,
-            8 => Paths::Eight,
-            n => return Err(OpError::invalid(format!("paths = {n}: use 4 or 8"))),
-        };
+        let paths = Paths::from_count(params.int("paths")?).map_err(OpError::invalid)?;
         let config = SgmConfig {
             cost,
             sgm: SgmParams {

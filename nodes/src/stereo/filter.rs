@@ -27,35 +27,40 @@ pub fn filter_speckles(
         let label = next_label;
         next_label += 1;
         region[start] = label;
-        stack.push(start);
+        // Positions travel with their coordinates: no division per pixel.
+        stack.push((start, start % width, start / width));
         members.clear();
-        while let Some(p) = stack.pop() {
-            members.push(p);
+        let mut size = 0usize;
+        while let Some((p, x, y)) = stack.pop() {
+            size += 1;
+            // Only a region that may still be a speckle needs its members.
+            if size <= max_size + 1 {
+                members.push(p);
+            }
             let d = disparity[p];
-            let (x, y) = (p % width, p / width);
-            let mut visit = |q: usize| {
+            let mut visit = |q: usize, qx: usize, qy: usize| {
                 if region[q] == u32::MAX
                     && !disparity[q].is_nan()
                     && (disparity[q] - d).abs() <= max_diff_px
                 {
                     region[q] = label;
-                    stack.push(q);
+                    stack.push((q, qx, qy));
                 }
             };
             if x > 0 {
-                visit(p - 1);
+                visit(p - 1, x - 1, y);
             }
             if x + 1 < width {
-                visit(p + 1);
+                visit(p + 1, x + 1, y);
             }
             if y > 0 {
-                visit(p - width);
+                visit(p - width, x, y - 1);
             }
             if y + 1 < height {
-                visit(p + width);
+                visit(p + width, x, y + 1);
             }
         }
-        if members.len() <= max_size {
+        if size <= max_size {
             for &p in &members {
                 disparity[p] = f32::NAN;
             }

@@ -31,7 +31,7 @@ mod triangulate;
 
 pub use blobs::{MomentEllipse, components, dilate, ellipse_fit, erode, open_close, soft_centroid};
 pub use block_match::{BlockCost, block_match};
-pub use cost::{CostVolume, bt_costs, census_costs, census_transform};
+pub use cost::{CensusCosts, CostRows, CostVolume, bt_costs, census_costs, census_transform};
 pub use dense::{MatchCost, SgmConfig, sgm_disparity, speckle_size_px};
 pub use dense_ops::triangulate_disparity;
 pub use feature_ops::{features_from_table, features_to_table};

@@ -13,6 +13,9 @@
 //! positions, so those come from prefix sums over the band of rows a window
 //! covers (built once per row, small enough to stay in cache); only the two
 //! products of the left window with the right gradient are summed per pixel.
+//! All sums are of integers (grey levels and twice the gradient, a
+//! difference of grey levels), so they are exact, vectorise as integer
+//! code, and do not depend on the order they are added in.
 
 use super::pair::GreyImage;
 use super::simd::Isa;
@@ -36,14 +39,17 @@ pub struct RefineParams {
 /// Window sums over one band of rows: `window(x0, side)` is the sum of a
 /// quantity over columns `x0 .. x0 + side` of the band's rows (prefix sums
 /// over x of its column sums).
-struct BandSums(Vec<f64>);
+struct BandSums(Vec<i64>);
 
 impl BandSums {
     /// From the column sums of a quantity over the band.
-    fn from_columns(columns: &[f64]) -> Self {
-        let mut prefix = vec![0f64; columns.len() + 1];
-        for (x, c) in columns.iter().enumerate() {
-            prefix[x + 1] = prefix[x] + c;
+    fn from_columns(columns: &[i32]) -> Self {
+        let mut prefix = Vec::with_capacity(columns.len() + 1);
+        let mut total = 0i64;
+        prefix.push(0);
+        for &c in columns {
+            total += c as i64;
+            prefix.push(total);
         }
         BandSums(prefix)
     }
@@ -51,38 +57,39 @@ impl BandSums {
     /// Sum over columns `x0 .. x0 + side` of the band.
     #[inline]
     fn window(&self, x0: usize, side: usize) -> f64 {
-        self.0[x0 + side] - self.0[x0]
+        (self.0[x0 + side] - self.0[x0]) as f64
     }
 }
 
 /// Column sums over a band of rows of the eight quantities Gauss-Newton needs
-/// besides the left-gradient products: left, right, gradient, gradient^2,
-/// gradient x next gradient, gradient x right, gradient x next right, next
-/// gradient x right ("next" = one column to the right, 0 past the edge). The
-/// band slides down a row by adding one row and removing another; every term
-/// is a multiple of 1/4 well below 2^50, so the sums stay exact.
+/// besides the left-gradient products: left, right, g, g^2, g x next g,
+/// g x right, g x next right, next g x right, where g is twice the right
+/// image's horizontal gradient (so an integer) and "next" is one column to
+/// the right (0 past the edge). The band slides down a row by adding one row
+/// and removing another. Each term is at most 2 * 255^2 in size, so a column
+/// of up to [`MAX_SIDE`] rows fits an i32.
 struct ColumnSums<'a> {
-    images: [&'a [f32]; 3],
+    images: [&'a [i16]; 3],
     w: usize,
-    cols: [Vec<f64>; 8],
+    cols: [Vec<i32>; 8],
 }
 
 impl<'a> ColumnSums<'a> {
     /// The sums over rows `y0 .. y0 + rows` of the left, right and gradient images.
-    fn band(images: [&'a [f32]; 3], w: usize, y0: usize, rows: usize) -> Self {
+    fn band(images: [&'a [i16]; 3], w: usize, y0: usize, rows: usize) -> Self {
         let mut sums = ColumnSums {
             images,
             w,
-            cols: [(); 8].map(|_| vec![0f64; w]),
+            cols: [(); 8].map(|_| vec![0i32; w]),
         };
         for y in y0..y0 + rows {
-            sums.add_row(y, 1.0);
+            sums.add_row(y, 1);
         }
         sums
     }
 
     /// Adds row `y` (sign 1) or removes it (sign -1).
-    fn add_row(&mut self, y: usize, sign: f64) {
+    fn add_row(&mut self, y: usize, sign: i32) {
         let w = self.w;
         let [lf, rf, gx] = self.images;
         let (l, r, g) = (
@@ -91,11 +98,11 @@ impl<'a> ColumnSums<'a> {
             &gx[y * w..(y + 1) * w],
         );
         for x in 0..w {
-            let (lv, rv, gv) = (l[x] as f64, r[x] as f64, g[x] as f64);
+            let (lv, rv, gv) = (l[x] as i32, r[x] as i32, g[x] as i32);
             let (r1, g1) = if x + 1 < w {
-                (r[x + 1] as f64, g[x + 1] as f64)
+                (r[x + 1] as i32, g[x + 1] as i32)
             } else {
-                (0.0, 0.0)
+                (0, 0)
             };
             let terms = [lv, rv, gv, gv * gv, gv * g1, gv * rv, gv * r1, g1 * rv];
             for (c, t) in self.cols.iter_mut().zip(terms) {
@@ -125,20 +132,20 @@ pub fn refine_disparity(
     if w < side + 2 || h < side {
         return 0;
     }
-    let lf: Vec<f32> = left.data.iter().map(|&v| v as f32).collect();
-    let rf: Vec<f32> = right.data.iter().map(|&v| v as f32).collect();
-    // Horizontal gradient of the right image (central differences).
-    let mut gx = vec![0f32; w * h];
+    let li: Vec<i16> = left.data.iter().map(|&v| v as i16).collect();
+    let ri: Vec<i16> = right.data.iter().map(|&v| v as i16).collect();
+    // Twice the horizontal gradient of the right image (central differences).
+    let mut g2 = vec![0i16; w * h];
     for y in 0..h {
         for x in 1..w - 1 {
-            gx[y * w + x] = 0.5 * (rf[y * w + x + 1] - rf[y * w + x - 1]);
+            g2[y * w + x] = ri[y * w + x + 1] - ri[y * w + x - 1];
         }
     }
     let n = (side * side) as f64;
     let isa = Isa::detect();
     // Rows in blocks, so the band of column sums slides from row to row.
     const BLOCK_ROWS: usize = 16;
-    let images = [&lf[..], &rf[..], &gx[..]];
+    let images = [&li[..], &ri[..], &g2[..]];
     disparity
         .par_chunks_mut(w * BLOCK_ROWS)
         .enumerate()
@@ -153,8 +160,8 @@ pub fn refine_disparity(
                 let y0 = y - r;
                 match &mut band {
                     Some(sums) => {
-                        sums.add_row(y + r, 1.0);
-                        sums.add_row(y0 - 1, -1.0);
+                        sums.add_row(y + r, 1);
+                        sums.add_row(y0 - 1, -1);
                     }
                     None => band = Some(ColumnSums::band(images, w, y0, side)),
                 }
@@ -164,8 +171,8 @@ pub fn refine_disparity(
                     r..w - r,
                     y0,
                     sums.windows(),
-                    &lf,
-                    &gx,
+                    &li,
+                    &g2,
                     w,
                     side,
                     n,
@@ -186,8 +193,8 @@ fn refine_row(
     columns: std::ops::Range<usize>,
     y0: usize,
     sums: [BandSums; 8],
-    lf: &[f32],
-    gx: &[f32],
+    lf: &[i16],
+    gx: &[i16],
     w: usize,
     side: usize,
     n: f64,
@@ -219,16 +226,17 @@ fn refine_row(
         let sl = sum_l.window(x - r, side);
         let mut d = d0 as f64;
         let mut ok = true;
-        let mut cached = (usize::MAX, (0f32, 0f32));
+        let mut cached = (usize::MAX, (0i32, 0i32));
         for _ in 0..params.iterations {
             // The window's right samples start at c + t (c integer).
             let xs = x as f64 - d - r as f64;
-            let cf = xs.floor();
-            if cf < 0.0 || cf as usize + side + 1 >= w {
+            // xs >= 0 here, so truncation is the floor (and needs no libm call).
+            if xs < 0.0 || xs as usize + side + 1 >= w {
                 ok = false;
                 break;
             }
-            let (c, t) = (cf as usize, xs - cf);
+            let c = xs as usize;
+            let t = xs - c as f64;
             let u = 1.0 - t;
             // Left window against the right gradient at c and c + 1
             // (the same c as the last step needs no new sums).
@@ -246,13 +254,15 @@ fn refine_row(
                 - (u * u * sum_g_r.window(c, side)
                     + t * u * (sum_g_r1.window(c, side) + sum_g1_r.window(c, side))
                     + t * t * sum_g_r.window(c + 1, side));
+            // The sums with g are of twice the gradient: var_g is four times
+            // the gradient's variance, s_gr and s_g twice theirs.
             let var_g = s_gg - s_g * s_g / n;
-            if var_g < 1e-3 * n {
+            if var_g < 4e-3 * n {
                 ok = false; // no horizontal texture to align
                 break;
             }
             // res(d + delta) ~ res + g delta (I_R is sampled at x - d - delta).
-            let delta = -(s_gr - s_g * s_r / n) / var_g;
+            let delta = -2.0 * (s_gr - s_g * s_r / n) / var_g;
             d += delta;
             if (d - d0 as f64).abs() > params.max_change_px as f64 {
                 ok = false;
@@ -287,8 +297,8 @@ mod tests {
     #[test]
     fn band_windows() {
         let band = |y0: usize, rows: usize| {
-            let cols: Vec<f64> = (0..5)
-                .map(|x| (y0..y0 + rows).map(|y| (x + 10 * y) as f64).sum())
+            let cols: Vec<i32> = (0..5)
+                .map(|x| (y0..y0 + rows).map(|y| (x + 10 * y) as i32).sum())
                 .collect();
             BandSums::from_columns(&cols)
         };

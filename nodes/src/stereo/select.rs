@@ -4,6 +4,7 @@
 //! and its neighbours for sub-pixel disparity. Shared by every matcher.
 
 use super::pair::DisparityRange;
+use super::simd::Isa;
 use rayon::prelude::*;
 
 /// How disparities are chosen from costs.
@@ -51,10 +52,41 @@ where
 pub trait Cost: Copy + PartialOrd + Into<f64> + Send + Sync {
     /// Larger than or equal to every cost.
     const WORST: Self;
+
+    /// The lowest cost of `c` and its first index (`None` when `c` is
+    /// empty), and the lowest cost more than one index away from it
+    /// ([`Cost::WORST`] when there is none).
+    fn winner(c: &[Self], _isa: Isa) -> Option<Winner<Self>> {
+        let best = lowest(c);
+        let k = c.iter().position(|&v| v == best)?;
+        let runner_up = lowest(&c[..k.saturating_sub(1)]);
+        let after = lowest(&c[(k + 2).min(c.len())..]);
+        Some(Winner {
+            best,
+            k,
+            runner_up: if after < runner_up { after } else { runner_up },
+        })
+    }
+}
+
+/// The cheapest disparity of a pixel and its nearest rival.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Winner<T> {
+    /// Its cost.
+    pub best: T,
+    /// Its index (first of equal costs).
+    pub k: usize,
+    /// The cheapest cost more than one index away.
+    pub runner_up: T,
 }
 
 impl Cost for u16 {
     const WORST: Self = u16::MAX;
+
+    fn winner(c: &[Self], isa: Isa) -> Option<Winner<Self>> {
+        isa.winner_u16(c)
+            .map(|(best, k, runner_up)| Winner { best, k, runner_up })
+    }
 }
 
 impl Cost for u32 {
@@ -82,12 +114,12 @@ pub(crate) fn select_row<T: Cost>(
 ) {
     let n = range.count;
     let u = params.uniqueness_pct / 100.0;
+    let isa = Isa::detect();
     // Winners of the left pixels (k, or n for none).
     let mut winner = vec![n; width];
     for (x, w) in winner.iter_mut().enumerate() {
         let c = &costs[x * stride..x * stride + n];
-        let best = lowest(c);
-        let Some(k) = c.iter().position(|&v| v == best) else {
+        let Some(Winner { best, k, runner_up }) = T::winner(c, isa) else {
             continue;
         };
         let (k_lo, k_hi) = super::cost::valid_ks(x, width, range);
@@ -99,14 +131,8 @@ pub(crate) fn select_row<T: Cost>(
         if n > 2 && (k == 0 || k == n - 1) {
             continue;
         }
-        if u > 0.0 {
-            // The cheapest disparity more than one step away.
-            let runner_up = lowest(&c[..k.saturating_sub(1)])
-                .into()
-                .min(lowest(&c[(k + 2).min(n)..]).into());
-            if runner_up < best.into() * (1.0 + u) {
-                continue;
-            }
+        if u > 0.0 && runner_up.into() < best.into() * (1.0 + u) {
+            continue;
         }
         *w = k;
     }

@@ -10,10 +10,11 @@
 //! upward diagonals). Each pass keeps only one row of path costs and writes
 //! its sum of paths as 16-bit costs; the two sums add up to the total.
 
-use super::cost::CostVolume;
+use super::cost::CostRows;
 use super::pair::{DisparityRange, GreyImage};
 use super::select::{SelectParams, select_row};
 use super::simd::{Isa, sgm_pixel_body};
+use std::ops::Range;
 use std::sync::OnceLock;
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -23,10 +24,38 @@ const SENTINEL: u16 = 16383;
 /// Which paths to aggregate along.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Paths {
-    /// Horizontal and vertical, both ways.
+    /// Horizontal and vertical, both ways (two passes).
     Four,
-    /// Horizontal, vertical and both diagonals, both ways.
+    /// Horizontal both ways, down and the two downward diagonals, in one
+    /// top-down pass (OpenCV's default `MODE_SGBM`): nothing is stored
+    /// between rows but the previous row's path costs, and the image is
+    /// matched in horizontal stripes in parallel.
+    Five,
+    /// Horizontal, vertical and both diagonals, both ways (two passes).
     Eight,
+}
+
+impl Paths {
+    /// The number of paths.
+    pub fn count(self) -> usize {
+        match self {
+            Paths::Four => 4,
+            Paths::Five => 5,
+            Paths::Eight => 8,
+        }
+    }
+
+    /// Paths from their number (4, 5 or 8).
+    pub fn from_count(n: i64) -> Result<Self, String> {
+        match n {
+            4 => Ok(Paths::Four),
+            5 => Ok(Paths::Five),
+            8 => Ok(Paths::Eight),
+            _ => Err(format!(
+                "paths = {n}: use 4 or 8 (two passes), or 5 (one top-down pass)"
+            )),
+        }
+    }
 }
 
 /// Penalties and paths of semi-global matching.
@@ -94,23 +123,60 @@ impl Aggregated {
     }
 }
 
-/// Aggregates `volume` along the paths of `params` (checked by
-/// [`SgmParams::check`]); `guide` (the left image) adapts P2 to its edges.
-pub fn aggregate(volume: &CostVolume, params: &SgmParams, guide: Option<&GreyImage>) -> Aggregated {
+/// Aggregates `costs` along the paths of `params` (checked by
+/// [`SgmParams::check`]) over the whole image, with no stripes (for tests and
+/// inspection; [`aggregate_and_select`] is the fast way); `guide` (the left
+/// image) adapts P2 to its edges. With [`Paths::Five`] the single pass's
+/// sums are in `down` and `up` is zero.
+pub fn aggregate<C: CostRows>(
+    costs: &C,
+    params: &SgmParams,
+    guide: Option<&GreyImage>,
+) -> Aggregated {
     let isa = Isa::detect();
+    let (w, h) = (costs.width(), costs.height());
     // P2 by grey-level step between neighbours.
     let p2_of = p2_table(params, guide);
-    let guide = guide.filter(|g| (g.width, g.height) == (volume.width, volume.height));
-    let (down, up) = rayon::join(
-        || pass(volume, params, &p2_of, guide, false, isa),
-        || pass(volume, params, &p2_of, guide, true, isa),
-    );
+    let guide = guide.filter(|g| (g.width, g.height) == (w, h));
+    let whole = |plan: PassPlan| pass(costs, params, &p2_of, guide, &plan, isa);
+    let (down, up) = match params.paths {
+        Paths::Five => (
+            whole(PassPlan::single(0..h)),
+            vec![0; h * w * lanes_for(costs.range().count)],
+        ),
+        paths => rayon::join(
+            || whole(PassPlan::two_way(paths, 0..h, false)),
+            || whole(PassPlan::two_way(paths, 0..h, true)),
+        ),
+    };
     Aggregated {
-        width: volume.width,
-        height: volume.height,
-        range: volume.range,
+        width: w,
+        height: h,
+        range: costs.range(),
         down,
         up,
+    }
+}
+
+impl PassPlan {
+    /// The one top-down pass of [`Paths::Five`] over `rows`.
+    fn single(rows: Range<usize>) -> Self {
+        PassPlan {
+            rows,
+            reverse: false,
+            vertical_paths: 3,
+            back_horizontal: true,
+        }
+    }
+
+    /// One of the two passes of 4 or 8 paths.
+    fn two_way(paths: Paths, rows: Range<usize>, reverse: bool) -> Self {
+        PassPlan {
+            rows,
+            reverse,
+            vertical_paths: if paths == Paths::Four { 1 } else { 3 },
+            back_horizontal: false,
+        }
     }
 }
 
@@ -120,23 +186,35 @@ pub fn lanes_for(n: usize) -> usize {
     n.div_ceil(16) * 16
 }
 
-/// One pass over the image: rows in order (or reversed), pixels in order (or
-/// reversed). In the pass's own frame, pixel i of row j continues the paths from
-/// (i - 1, j) and, from the row before, (i, j - 1), (i - 1, j - 1), (i + 1, j - 1).
-fn run_pass(
-    volume: &CostVolume,
+/// The rows a pass runs over and the ways it goes.
+#[derive(Debug, Clone)]
+struct PassPlan {
+    /// Image rows, visited in order or reversed.
+    rows: Range<usize>,
+    /// Bottom-up and right to left (else top-down and left to right).
+    reverse: bool,
+    /// Paths from the previous row: 1 (vertical) or 3 (and the diagonals).
+    vertical_paths: usize,
+    /// Also the horizontal path against the pass's direction, within each row.
+    back_horizontal: bool,
+}
+
+/// One pass over rows of the image. In the pass's own frame, pixel i of row
+/// j continues the paths from (i - 1, j) and, from the row before, (i, j - 1),
+/// (i - 1, j - 1), (i + 1, j - 1); with `back_horizontal`, also from (i + 1, j).
+/// `on_row(y, sums)` gets each row's sum of the pass's paths, `[x][lane]`.
+fn run_pass<C: CostRows>(
+    costs: &C,
     params: &SgmParams,
     p2_of: &[u16],
     guide: Option<&GreyImage>,
-    reverse: bool,
+    plan: &PassPlan,
     isa: Isa,
     mut on_row: impl FnMut(usize, &[u16]),
 ) {
-    let (w, h, n) = (volume.width, volume.height, volume.range.count);
-    let vertical_paths = match params.paths {
-        Paths::Four => 1,
-        Paths::Eight => 3,
-    };
+    let (w, n) = (costs.width(), costs.range().count);
+    let vertical_paths = plan.vertical_paths;
+    let reverse = plan.reverse;
     let lanes = lanes_for(n);
     let stride = lanes + 2;
     // Lanes past the disparity count get a sentinel added, so they never win.
@@ -144,6 +222,7 @@ fn run_pass(
         .map(|k| if k < n { 0 } else { SENTINEL })
         .collect();
     let mut cost_lanes = vec![0u8; lanes];
+    let mut cost_scratch = vec![0u8; w * costs.lanes()];
     // Path costs of the previous and current rows, per vertical path, with a
     // virtual pixel on each side (index 0 and w + 1) that starts paths: its
     // costs are 0, so a path's first pixel gets just its matching cost.
@@ -171,8 +250,13 @@ fn run_pass(
     let mut sum_row = vec![0u16; w * lanes];
     let p1 = params.p1;
     let mut p2_row = vec![[params.p2; 4]; w];
-    for j in 0..h {
-        let y = if reverse { h - 1 - j } else { j };
+    let mut p2_back = vec![params.p2; if plan.back_horizontal { w } else { 0 }];
+    let rows: Box<dyn Iterator<Item = usize>> = if reverse {
+        Box::new(plan.rows.clone().rev())
+    } else {
+        Box::new(plan.rows.clone())
+    };
+    for (j, y) in rows.enumerate() {
         if let Some(g) = guide {
             // P2 towards each path's previous pixel: horizontal (x + dx, y),
             // vertical (x, y + dy), diagonals (x + dx, y + dy) and (x - dx, y + dy),
@@ -199,12 +283,19 @@ fn run_pass(
                     }
                 }
             }
+            // The horizontal path the other way, indexed by image x.
+            for (x, p2) in p2_back.iter_mut().enumerate() {
+                let from = if reverse { x.wrapping_sub(1) } else { x + 1 };
+                *p2 = if from < w {
+                    step(row[x], row[from])
+                } else {
+                    params.p2
+                };
+            }
         }
-        h_prev[1..=n].fill(0);
-        let per_pixel = volume.lanes;
         let mut job = RowJob {
-            cost_row: &volume.data[y * w * per_pixel..(y + 1) * w * per_pixel],
-            cost_stride: per_pixel,
+            cost_row: costs.row(y, &mut cost_scratch),
+            cost_stride: costs.lanes(),
             n,
             lanes,
             vertical_paths,
@@ -212,6 +303,7 @@ fn run_pass(
             p1,
             pad: &pad,
             p2: &p2_row,
+            p2_back: &p2_back,
             prev: &prev,
             prev_min: &prev_min,
             cur: &mut cur,
@@ -248,6 +340,9 @@ pub(crate) struct RowJob<'a> {
     pub pad: &'a [u16],
     /// P2 per pass position, per path (horizontal, vertical, two diagonals).
     pub p2: &'a [[u16; 4]],
+    /// P2 of the horizontal path against the pass, per image x; empty when
+    /// the pass has no such path.
+    pub p2_back: &'a [u16],
     /// Path costs of the previous row, per vertical path and padded pixel.
     pub prev: &'a [u16],
     /// Their minima.
@@ -274,6 +369,7 @@ pub(crate) fn row_body(job: &mut RowJob<'_>) {
     let stride = lanes + 2;
     let plane = (w + 2) * stride;
     let mut h_min = 0u16;
+    job.h_prev[1..=n].fill(0);
     for i in 0..w {
         let x = if job.reverse { w - 1 - i } else { i };
         let at_x = x * job.cost_stride;
@@ -291,7 +387,9 @@ pub(crate) fn row_body(job: &mut RowJob<'_>) {
             let (c0, rest) = job.cur.split_at_mut(plane);
             let (c1, c2) = rest.split_at_mut(plane);
             let prev = job.prev;
-            let mins = sgm_pixel_body(
+            let (m0, rest) = job.cur_min.split_at_mut(w + 2);
+            let (m1, m2) = rest.split_at_mut(w + 2);
+            sgm_pixel_body(
                 cost,
                 job.pad,
                 [
@@ -314,14 +412,12 @@ pub(crate) fn row_body(job: &mut RowJob<'_>) {
                     &mut c1[o..o + stride],
                     &mut c2[o..o + stride],
                 ],
+                [&mut h_min, &mut m0[i + 1], &mut m1[i + 1], &mut m2[i + 1]],
                 sum,
+                false,
             );
-            h_min = mins[0];
-            job.cur_min[i + 1] = mins[1];
-            job.cur_min[(w + 2) + i + 1] = mins[2];
-            job.cur_min[2 * (w + 2) + i + 1] = mins[3];
         } else {
-            let mins = sgm_pixel_body(
+            sgm_pixel_body(
                 cost,
                 job.pad,
                 [&job.h_prev[..], &job.prev[o..o + stride]],
@@ -329,50 +425,172 @@ pub(crate) fn row_body(job: &mut RowJob<'_>) {
                 job.p1,
                 [p2[0], p2[1]],
                 [&mut job.h_cur[..], &mut job.cur[o..o + stride]],
+                [&mut h_min, &mut job.cur_min[i + 1]],
                 sum,
+                false,
             );
-            h_min = mins[0];
-            job.cur_min[i + 1] = mins[1];
         }
+        std::mem::swap(job.h_prev, job.h_cur);
+    }
+    if !job.p2_back.is_empty() {
+        back_horizontal(job);
+    }
+}
+
+/// The horizontal path against the pass's direction along the row, added to
+/// the row's sums.
+#[inline(always)]
+fn back_horizontal(job: &mut RowJob<'_>) {
+    let (n, lanes) = (job.n, job.lanes);
+    let w = job.p2_back.len();
+    let mut h_min = 0u16;
+    job.h_prev[1..=n].fill(0);
+    for i in 0..w {
+        let x = if job.reverse { i } else { w - 1 - i };
+        let at_x = x * job.cost_stride;
+        let cost = if job.cost_stride >= lanes {
+            &job.cost_row[at_x..at_x + lanes]
+        } else {
+            job.cost_lanes[..n].copy_from_slice(&job.cost_row[at_x..at_x + n]);
+            &job.cost_lanes[..]
+        };
+        sgm_pixel_body(
+            cost,
+            job.pad,
+            [&job.h_prev[..]],
+            [h_min],
+            job.p1,
+            [job.p2_back[x]],
+            [&mut job.h_cur[..]],
+            [&mut h_min],
+            &mut job.sum_row[x * lanes..(x + 1) * lanes],
+            true,
+        );
         std::mem::swap(job.h_prev, job.h_cur);
     }
 }
 
 /// One pass's sums of paths as a whole volume `[y][x][lane]`.
-fn pass(
-    volume: &CostVolume,
+fn pass<C: CostRows>(
+    costs: &C,
     params: &SgmParams,
     p2_of: &[u16],
     guide: Option<&GreyImage>,
-    reverse: bool,
+    plan: &PassPlan,
     isa: Isa,
 ) -> Vec<u16> {
-    let len = volume.width * lanes_for(volume.range.count);
-    let mut sums = vec![0u16; volume.height * len];
-    run_pass(volume, params, p2_of, guide, reverse, isa, |y, row| {
+    let len = costs.width() * lanes_for(costs.range().count);
+    let mut sums = vec![0u16; costs.height() * len];
+    run_pass(costs, params, p2_of, guide, plan, isa, |y, row| {
         sums[y * len..(y + 1) * len].copy_from_slice(row)
     });
     sums
 }
 
-/// Semi-global matching from costs to disparities (px, NaN = invalid) without
-/// holding two whole volumes: the top-down and bottom-up passes run on two
-/// threads and meet in the middle. Each keeps its sums only for the half of
-/// the rows the other reaches last; when it reaches a row the other has
-/// already summed, it adds the two and selects that row's disparities at
-/// once. So one volume of sums instead of two, and selection runs in the
-/// passes, in parallel.
-pub fn aggregate_and_select(
-    volume: &CostVolume,
+/// Semi-global matching from costs to disparities (px, NaN = invalid),
+/// selected by `select` row by row as the aggregation reaches them.
+pub fn aggregate_and_select<C: CostRows>(
+    costs: &C,
     params: &SgmParams,
     guide: Option<&GreyImage>,
     select: &SelectParams,
 ) -> Vec<f32> {
-    let (w, h) = (volume.width, volume.height);
-    let lanes = lanes_for(volume.range.count);
+    let guide = guide.filter(|g| (g.width, g.height) == (costs.width(), costs.height()));
+    match params.paths {
+        Paths::Five => in_stripes(costs, params, guide, select),
+        _ => meeting_in_the_middle(costs, params, guide, select),
+    }
+}
+
+/// Rows of warm-up a stripe of [`in_stripes`] aggregates above its first row,
+/// so its vertical and diagonal paths do not start cold there.
+const STRIPE_WARM_UP_ROWS: usize = 24;
+
+/// Stripes for `h` rows: a power of two that leaves each at least 128 rows,
+/// at most 16. It depends on the image alone, never on the threads, so the
+/// result is the same on any machine.
+fn stripe_count(h: usize) -> usize {
+    let mut n = 1;
+    while n < 16 && h / (2 * n) >= 128 {
+        n *= 2;
+    }
+    n
+}
+
+/// The rows of each stripe of `h` rows: [`stripe_count`] stripes, the first
+/// longer by the warm-up the others aggregate, so all take the same time.
+fn stripe_bounds(h: usize) -> Vec<Range<usize>> {
+    let stripes = stripe_count(h);
+    let warm_up = STRIPE_WARM_UP_ROWS.min(h / stripes);
+    let work = (h + (stripes - 1) * warm_up).div_ceil(stripes);
+    let mut bounds = Vec::with_capacity(stripes);
+    let mut start = 0;
+    for s in 0..stripes {
+        let rows = if s == 0 { work } else { work - warm_up };
+        let end = if s + 1 == stripes {
+            h
+        } else {
+            (start + rows).min(h)
+        };
+        bounds.push(start..end);
+        start = end;
+    }
+    bounds
+}
+
+/// The single top-down pass of [`Paths::Five`], in horizontal stripes
+/// matched in parallel; each stripe starts [`STRIPE_WARM_UP_ROWS`] above its
+/// first row and selects disparities as each row's sums are complete.
+fn in_stripes<C: CostRows>(
+    costs: &C,
+    params: &SgmParams,
+    guide: Option<&GreyImage>,
+    select: &SelectParams,
+) -> Vec<f32> {
+    use rayon::prelude::*;
+    let (w, h) = (costs.width(), costs.height());
+    let lanes = lanes_for(costs.range().count);
     let isa = Isa::detect();
     let p2_of = p2_table(params, guide);
-    let guide = guide.filter(|g| (g.width, g.height) == (w, h));
+    let bounds = stripe_bounds(h);
+    let mut disparity = vec![f32::NAN; w * h];
+    let mut chunks = Vec::with_capacity(bounds.len());
+    let mut rest = &mut disparity[..];
+    for rows in &bounds {
+        let (chunk, tail) = rest.split_at_mut(rows.len() * w);
+        chunks.push((rows.clone(), chunk));
+        rest = tail;
+    }
+    chunks.into_par_iter().for_each(|(rows, out)| {
+        let first = rows.start;
+        let plan = PassPlan::single(first.saturating_sub(STRIPE_WARM_UP_ROWS)..rows.end);
+        run_pass(costs, params, &p2_of, guide, &plan, isa, |y, total| {
+            if y >= first {
+                let r = y - first;
+                let row = &mut out[r * w..(r + 1) * w];
+                select_row(total, w, costs.range(), lanes, select, row);
+            }
+        });
+    });
+    disparity
+}
+
+/// 4 or 8 paths without holding two whole volumes: the top-down and
+/// bottom-up passes run on two threads and meet in the middle. Each keeps its
+/// sums only for the half of the rows the other reaches last; when it
+/// reaches a row the other has already summed, it adds the two and selects
+/// that row's disparities at once. So one volume of sums instead of two, and
+/// selection runs in the passes, in parallel.
+fn meeting_in_the_middle<C: CostRows>(
+    costs: &C,
+    params: &SgmParams,
+    guide: Option<&GreyImage>,
+    select: &SelectParams,
+) -> Vec<f32> {
+    let (w, h) = (costs.width(), costs.height());
+    let lanes = lanes_for(costs.range().count);
+    let isa = Isa::detect();
+    let p2_of = p2_table(params, guide);
     let mid = h / 2;
     // Rows 0..mid summed by the top-down pass (read by the bottom-up one),
     // rows mid..h by the bottom-up pass.
@@ -384,7 +602,8 @@ pub fn aggregate_and_select(
         // If this thread panics, the other must stop waiting for its rows.
         let guard = PanicFlag(&failed);
         let mut total = vec![0u16; w * lanes];
-        run_pass(volume, params, &p2_of, guide, reverse, isa, |y, row| {
+        let plan = PassPlan::two_way(params.paths, 0..h, reverse);
+        run_pass(costs, params, &p2_of, guide, &plan, isa, |y, row| {
             let mine_to_hand = if reverse { y >= mid } else { y < mid };
             if mine_to_hand {
                 let _ = handed[y].set(row.to_vec());
@@ -400,7 +619,7 @@ pub fn aggregate_and_select(
             select_row(
                 &total,
                 w,
-                volume.range,
+                costs.range(),
                 lanes,
                 select,
                 &mut out[r * w..(r + 1) * w],
@@ -454,6 +673,7 @@ fn wait_for<'a>(cell: &'a OnceLock<Vec<u16>>, failed: &AtomicBool) -> Option<&'a
 
 #[cfg(test)]
 mod tests {
+    use super::super::cost::CostVolume;
     use super::*;
 
     /// The `n` costs of pixel (x, y) of an unpadded `[y][x][k]` volume `w` wide.
@@ -662,10 +882,14 @@ mod tests {
             p2_gamma: 0.0,
         };
         let p2_of = p2_table(&params, None);
-        for reverse in [false, true] {
-            let scalar = pass(&volume, &params, &p2_of, None, reverse, Isa::Scalar);
-            let best = pass(&volume, &params, &p2_of, None, reverse, Isa::detect());
-            assert_eq!(scalar, best);
+        for plan in [
+            PassPlan::two_way(Paths::Eight, 0..h, false),
+            PassPlan::two_way(Paths::Eight, 0..h, true),
+            PassPlan::single(0..h),
+        ] {
+            let scalar = pass(&volume, &params, &p2_of, None, &plan, Isa::Scalar);
+            let best = pass(&volume, &params, &p2_of, None, &plan, Isa::detect());
+            assert_eq!(scalar, best, "{plan:?}");
         }
     }
 
@@ -755,5 +979,68 @@ mod tests {
                 "k {k}"
             );
         }
+    }
+
+    #[test]
+    fn five_paths_equal_the_recurrence_by_hand() {
+        let (w, h, n) = (7usize, 6usize, 5usize);
+        let data: Vec<u8> = (0..w * h * n)
+            .map(|i| ((i * 31 + i / 7) % 29) as u8)
+            .collect();
+        let range = DisparityRange::new(0, n as i32 - 1, w).unwrap();
+        let volume = CostVolume::unpadded(w, h, range, 29, data.clone());
+        let params = SgmParams {
+            p1: 3,
+            p2: 25,
+            paths: Paths::Five,
+            p2_gamma: 0.0,
+        };
+        let agg = aggregate(&volume, &params, None);
+        assert!(agg.up.iter().all(|&v| v == 0));
+        let c = |x: usize, y: usize| pixel_costs(&data, w, n, x, y);
+        let rec = |v: Vec<Vec<u16>>| path_costs(&v, 3, 25).pop().unwrap();
+        for y in 0..h {
+            for x in 0..w {
+                // Each path's pixels up to (x, y), in the order the path runs.
+                let lr = rec((0..=x).map(|t| c(t, y)).collect());
+                let rl = rec((x..w).rev().map(|t| c(t, y)).collect());
+                let tb = rec((0..=y).map(|t| c(x, t)).collect());
+                let back = x.min(y);
+                let dr = rec((0..=back).rev().map(|t| c(x - t, y - t)).collect());
+                let fwd = (w - 1 - x).min(y);
+                let dl = rec((0..=fwd).rev().map(|t| c(x + t, y - t)).collect());
+                let l = agg.lanes();
+                for k in 0..n {
+                    assert_eq!(
+                        agg.down[(y * w + x) * l + k],
+                        lr[k] + rl[k] + tb[k] + dr[k] + dl[k],
+                        "pixel ({x}, {y}) k {k}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn stripes_cover_every_row_once_with_even_work() {
+        for h in [1usize, 100, 255, 256, 375, 600, 1080, 5000] {
+            let bounds = stripe_bounds(h);
+            assert_eq!(bounds.len(), stripe_count(h));
+            assert_eq!(bounds[0].start, 0);
+            assert_eq!(bounds.last().unwrap().end, h);
+            for pair in bounds.windows(2) {
+                assert_eq!(pair[0].end, pair[1].start, "h {h}");
+            }
+            // Rows aggregated per stripe, warm-up included, differ by a row
+            // or two at most.
+            let work: Vec<usize> = bounds
+                .iter()
+                .map(|r| r.end - r.start.saturating_sub(STRIPE_WARM_UP_ROWS))
+                .collect();
+            let (lo, hi) = (work.iter().min().unwrap(), work.iter().max().unwrap());
+            assert!(hi - lo <= 2, "h {h}: {work:?}");
+        }
+        assert_eq!(stripe_count(255), 1);
+        assert_eq!(stripe_count(600), 4);
     }
 }

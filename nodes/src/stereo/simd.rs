@@ -64,13 +64,23 @@ macro_rules! kernels {
 }
 
 kernels! {
-    /// One census comparison for a whole row: shifts every code left and sets
-    /// the new bit where the neighbour is darker than the centre.
-    fn census_bits(codes: &mut [u64], neighbour: &[u8], centre: &[u8]) {
-        let n = codes.len().min(neighbour.len()).min(centre.len());
-        let (codes, neighbour, centre) = (&mut codes[..n], &neighbour[..n], &centre[..n]);
+    /// One census comparison for a whole row: shifts every pixel's byte of
+    /// bits left and sets the new bit where the neighbour is darker than the
+    /// centre.
+    fn census_bits(bits: &mut [u8], neighbour: &[u8], centre: &[u8]) {
+        let n = bits.len().min(neighbour.len()).min(centre.len());
+        let (bits, neighbour, centre) = (&mut bits[..n], &neighbour[..n], &centre[..n]);
         for i in 0..n {
-            codes[i] = (codes[i] << 1) | (neighbour[i] < centre[i]) as u64;
+            bits[i] = (bits[i] << 1) | (neighbour[i] < centre[i]) as u8;
+        }
+    }
+
+    /// Appends the low `count` (1..=8) bits of each byte to the codes.
+    fn shift_in_byte(codes: &mut [u64], bits: &[u8], count: u32) {
+        let n = codes.len().min(bits.len());
+        let mask = ((1u16 << count) - 1) as u64;
+        for (c, &b) in codes[..n].iter_mut().zip(&bits[..n]) {
+            *c = (*c << count) | (b as u64 & mask);
         }
     }
 
@@ -88,31 +98,43 @@ kernels! {
     /// Sums over a `side x side` window (rows `y0..`) of the left image
     /// `left` (columns from `x_left`) times the gradient `grad` (columns from
     /// `c`, and from `c + 1`), images `w` px wide: the two products the
-    /// sub-pixel refinement cannot take from prefix sums. Accumulated per
-    /// column so the loop is elementwise vector code, not one addition chain.
+    /// sub-pixel refinement cannot take from prefix sums. Exact in i32 for
+    /// grey levels times differences of grey levels over up to 31 x 31 px.
     fn window_dots(
-        left: &[f32],
-        grad: &[f32],
+        left: &[i16],
+        grad: &[i16],
         w: usize,
         x_left: usize,
         c: usize,
         y0: usize,
         side: usize,
-    ) -> (f32, f32) {
-        const MAX: usize = 32;
-        let side = side.min(MAX - 1);
-        let (mut acc0, mut acc1) = ([0f32; MAX], [0f32; MAX]);
+    ) -> (i32, i32) {
+        let (mut dot0, mut dot1) = (0i32, 0i32);
         for j in 0..side {
             let base = (y0 + j) * w;
             let l = &left[base + x_left..base + x_left + side];
             let g0 = &grad[base + c..base + c + side];
             let g1 = &grad[base + c + 1..base + c + 1 + side];
             for i in 0..side {
-                acc0[i] += g0[i] * l[i];
-                acc1[i] += g1[i] * l[i];
+                dot0 += l[i] as i32 * g0[i] as i32;
+                dot1 += l[i] as i32 * g1[i] as i32;
             }
         }
-        (acc0[..side].iter().sum(), acc1[..side].iter().sum())
+        (dot0, dot1)
+    }
+
+    /// The lowest of `c`, its first index, and the lowest more than one index
+    /// from it (`u16::MAX` when none); `None` for an empty `c`. Whole-vector
+    /// minima, then a search of the one 16-lane block that holds the winner.
+    fn winner_u16(c: &[u16]) -> Option<(u16, usize, u16)> {
+        let min = |s: &[u16]| s.iter().fold(u16::MAX, |a, &b| a.min(b));
+        let best = min(c);
+        let block = c
+            .chunks(16)
+            .position(|b| b.iter().fold(false, |f, &v| f | (v == best)))?;
+        let k = block * 16 + c[block * 16..].iter().position(|&v| v == best)?;
+        let runner_up = min(&c[..k.saturating_sub(1)]).min(min(&c[(k + 2).min(c.len())..]));
+        Some((best, k, runner_up))
     }
 
     /// One row of a semi-global aggregation pass ([`super::sgm::row_body`]).
@@ -126,7 +148,10 @@ kernels! {
 /// For path p, `prev[p]` holds the previous pixel's path costs in lanes
 /// 1..=n (lane 0 and n + 1 are large sentinels), `prev_min[p]` their minimum;
 /// the new path costs go to lanes 1..=n of `out[p]`, their (saturating) sum
-/// over paths to `sum`, and the new minima are returned. `cost` has the n
+/// over paths to `sum` (replacing it, or added to it with `add_to_sum`), and
+/// the new minima to `out_min` (each written where it is kept, rather than
+/// returned as an array: packing and unpacking that array stalled on store
+/// forwarding, a sixth of the aggregation time). `cost` has the n
 /// matching costs; `pad` is added to every new cost (0, or a sentinel for
 /// lanes past the disparity count, which then never win).
 #[inline(always)]
@@ -139,41 +164,38 @@ pub(crate) fn sgm_pixel_body<const N: usize>(
     p1: u16,
     p2: [u16; N],
     out: [&mut [u16]; N],
+    out_min: [&mut u16; N],
     sum: &mut [u16],
-) -> [u16; N] {
+    add_to_sum: bool,
+) {
     let n = cost.len();
-    let sum = &mut sum[..n];
-    let pad = &pad[..n];
-    let mut new_min = [u16::MAX; N];
-    // One path at a time: each loop is a plain elementwise pass over the
-    // disparities that the compiler turns into vector code.
-    for (p, out) in out.into_iter().enumerate() {
-        let (below, same, above) = (&prev[p][0..n], &prev[p][1..n + 1], &prev[p][2..n + 2]);
-        let out = &mut out[1..n + 1];
-        let (floor, base) = (prev_min[p], prev_min[p] + p2[p]);
-        let mut lowest = u16::MAX;
-        // The first path sets the sum, the others add to it, in the same loop
-        // (a separate copy would be a call to memcpy per pixel).
-        if p == 0 {
-            for k in 0..n {
-                let m = same[k].min(below[k].min(above[k]) + p1).min(base);
-                let v = cost[k] as u16 + m - floor + pad[k];
-                out[k] = v;
-                sum[k] = v;
-                lowest = lowest.min(v);
-            }
-        } else {
-            for k in 0..n {
-                let m = same[k].min(below[k].min(above[k]) + p1).min(base);
-                let v = cost[k] as u16 + m - floor + pad[k];
-                out[k] = v;
-                sum[k] = sum[k].saturating_add(v);
-                lowest = lowest.min(v);
-            }
+    let (cost, pad, sum) = (&cost[..n], &pad[..n], &mut sum[..n]);
+    let below: [&[u16]; N] = std::array::from_fn(|p| &prev[p][0..n]);
+    let same: [&[u16]; N] = std::array::from_fn(|p| &prev[p][1..n + 1]);
+    let above: [&[u16]; N] = std::array::from_fn(|p| &prev[p][2..n + 2]);
+    let out = out.map(|o| &mut o[1..n + 1]);
+    let base: [u16; N] = std::array::from_fn(|p| prev_min[p] + p2[p]);
+    let mut lowest = [u16::MAX; N];
+    // All paths in one pass over the disparities, so the cost is loaded and
+    // the sum kept in registers once for all of them; the compiler turns the
+    // loop into vector code over k.
+    for k in 0..n {
+        let c = cost[k] as u16 + pad[k];
+        let mut total = if add_to_sum { sum[k] } else { 0 };
+        for p in 0..N {
+            let m = same[p][k]
+                .min(below[p][k].min(above[p][k]) + p1)
+                .min(base[p]);
+            let v = c + m - prev_min[p];
+            out[p][k] = v;
+            total = total.saturating_add(v);
+            lowest[p] = lowest[p].min(v);
         }
-        new_min[p] = lowest;
+        sum[k] = total;
     }
-    new_min
+    for (dst, v) in out_min.into_iter().zip(lowest) {
+        *dst = v;
+    }
 }
 
 #[cfg(test)]
@@ -200,7 +222,9 @@ mod tests {
         ];
         let mut sum = vec![0u16; 37];
         let [a, b, c, d] = &mut outs;
-        let new_mins = sgm_pixel_body(
+        let mut new_mins = [0u16; 4];
+        let [m0, m1, m2, m3] = &mut new_mins;
+        sgm_pixel_body(
             &cost,
             &[0u16; 37],
             [&prev[0], &prev[1], &prev[2], &prev[3]],
@@ -208,7 +232,9 @@ mod tests {
             8,
             [100, 90, 80, 70],
             [a, b, c, d],
+            [m0, m1, m2, m3],
             &mut sum,
+            false,
         );
         // By hand for path 0, k = 0: min(L'(0), L'(1) + P1, minL' + P2) etc.
         let pr = &prev[0];
@@ -217,9 +243,12 @@ mod tests {
         assert_eq!(new_mins[0], *outs[0][1..38].iter().min().unwrap());
         assert_eq!(sum[5], (0..4).map(|p| outs[p][6]).sum::<u16>());
 
-        let mut codes = vec![0u64; 5];
-        isa.census_bits(&mut codes, &[1, 5, 3, 9, 0], &[2, 2, 2, 2, 2]);
-        assert_eq!(codes, [1, 0, 0, 0, 1]);
+        let mut bits = vec![0b1u8; 5];
+        isa.census_bits(&mut bits, &[1, 5, 3, 9, 0], &[2, 2, 2, 2, 2]);
+        assert_eq!(bits, [0b11, 0b10, 0b10, 0b10, 0b11]);
+        let mut codes = vec![0b1u64; 2];
+        isa.shift_in_byte(&mut codes, &[0b1111_0101, 0b11], 3);
+        assert_eq!(codes, [0b1101, 0b1011]);
         let mut costs = [0u8; 3];
         isa.hamming_descending(&mut costs, 0b1011, &[0b0000, 0b1000, 0b1011]);
         assert_eq!(costs, [0, 2, 3]);

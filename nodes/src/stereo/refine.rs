@@ -143,8 +143,10 @@ pub fn refine_disparity(
     }
     let n = (side * side) as f64;
     let isa = Isa::detect();
-    // Rows in blocks, so the band of column sums slides from row to row.
-    const BLOCK_ROWS: usize = 16;
+    // Rows in blocks, so the band of column sums slides from row to row; each
+    // block starts its band afresh (side rows of sums), so not too short.
+    // The sums are exact, so the blocks do not change the result.
+    const BLOCK_ROWS: usize = 48;
     let images = [&li[..], &ri[..], &g2[..]];
     disparity
         .par_chunks_mut(w * BLOCK_ROWS)
@@ -183,6 +185,21 @@ pub fn refine_disparity(
             refined
         })
         .sum()
+}
+
+/// The window sums of one pixel at one integer start c of its right window
+/// (index 0 at c, 1 at c + 1), which every Gauss-Newton step with that c
+/// mixes by its own fraction.
+#[derive(Debug, Clone, Copy)]
+struct WindowSums {
+    r: [f64; 2],
+    g: [f64; 2],
+    gg: [f64; 2],
+    g_g1: f64,
+    g_r: [f64; 2],
+    g_r1: f64,
+    g1_r: f64,
+    g_l: [f64; 2],
 }
 
 /// Refines the valid disparities in `columns` of one row (its windows' rows
@@ -224,9 +241,11 @@ fn refine_row(
             continue;
         }
         let sl = sum_l.window(x - r, side);
+        // Divisions are slow and serial here: one per step, not three.
+        let inv_n = 1.0 / n;
         let mut d = d0 as f64;
         let mut ok = true;
-        let mut cached = (usize::MAX, (0i32, 0i32));
+        let mut cached: Option<(usize, WindowSums)> = None;
         for _ in 0..params.iterations {
             // The window's right samples start at c + t (c integer).
             let xs = x as f64 - d - r as f64;
@@ -238,31 +257,40 @@ fn refine_row(
             let c = xs as usize;
             let t = xs - c as f64;
             let u = 1.0 - t;
-            // Left window against the right gradient at c and c + 1
-            // (the same c as the last step needs no new sums).
-            if cached.0 != c {
-                let dots = isa.window_dots(lf, gx, w, x - r, c, y0, side);
-                cached = (c, dots);
-            }
-            let (g0l, g1l) = cached.1;
-            let s_r = sl - u * sum_r.window(c, side) - t * sum_r.window(c + 1, side);
-            let s_g = u * sum_g.window(c, side) + t * sum_g.window(c + 1, side);
-            let s_gg = u * u * sum_gg.window(c, side)
-                + 2.0 * t * u * sum_g_g1.window(c, side)
-                + t * t * sum_gg.window(c + 1, side);
-            let s_gr = u * g0l as f64 + t * g1l as f64
-                - (u * u * sum_g_r.window(c, side)
-                    + t * u * (sum_g_r1.window(c, side) + sum_g1_r.window(c, side))
-                    + t * t * sum_g_r.window(c + 1, side));
+            // The sums at c (the same c as the last step needs no new sums).
+            let k = match cached {
+                Some((at, k)) if at == c => k,
+                _ => {
+                    let (dot0, dot1) = isa.window_dots(lf, gx, w, x - r, c, y0, side);
+                    let at = |b: &BandSums| [b.window(c, side), b.window(c + 1, side)];
+                    let k = WindowSums {
+                        r: at(&sum_r),
+                        g: at(&sum_g),
+                        gg: at(&sum_gg),
+                        g_g1: sum_g_g1.window(c, side),
+                        g_r: at(&sum_g_r),
+                        g_r1: sum_g_r1.window(c, side),
+                        g1_r: sum_g1_r.window(c, side),
+                        g_l: [dot0 as f64, dot1 as f64],
+                    };
+                    cached = Some((c, k));
+                    k
+                }
+            };
+            let s_r = sl - u * k.r[0] - t * k.r[1];
+            let s_g = u * k.g[0] + t * k.g[1];
+            let s_gg = u * u * k.gg[0] + 2.0 * t * u * k.g_g1 + t * t * k.gg[1];
+            let s_gr = u * k.g_l[0] + t * k.g_l[1]
+                - (u * u * k.g_r[0] + t * u * (k.g_r1 + k.g1_r) + t * t * k.g_r[1]);
             // The sums with g are of twice the gradient: var_g is four times
             // the gradient's variance, s_gr and s_g twice theirs.
-            let var_g = s_gg - s_g * s_g / n;
+            let var_g = s_gg - s_g * s_g * inv_n;
             if var_g < 4e-3 * n {
                 ok = false; // no horizontal texture to align
                 break;
             }
             // res(d + delta) ~ res + g delta (I_R is sampled at x - d - delta).
-            let delta = -2.0 * (s_gr - s_g * s_r / n) / var_g;
+            let delta = -2.0 * (s_gr - s_g * s_r * inv_n) / var_g;
             d += delta;
             if (d - d0 as f64).abs() > params.max_change_px as f64 {
                 ok = false;

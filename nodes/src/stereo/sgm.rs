@@ -206,7 +206,7 @@ struct PassPlan {
 fn run_pass<C: CostRows>(
     costs: &C,
     params: &SgmParams,
-    p2_of: &[u16],
+    p2_of: &[u16; 256],
     guide: Option<&GreyImage>,
     plan: &PassPlan,
     isa: Isa,
@@ -258,40 +258,16 @@ fn run_pass<C: CostRows>(
     };
     for (j, y) in rows.enumerate() {
         if let Some(g) = guide {
-            // P2 towards each path's previous pixel: horizontal (x + dx, y),
-            // vertical (x, y + dy), diagonals (x + dx, y + dy) and (x - dx, y + dy),
-            // with dx, dy pointing back along the pass.
-            let row = g.row(y);
             let above = (j > 0).then(|| g.row(if reverse { y + 1 } else { y - 1 }));
-            let step = |a: u8, b: u8| p2_of[a.abs_diff(b) as usize];
-            for (i, p2) in p2_row.iter_mut().enumerate() {
-                let x = if reverse { w - 1 - i } else { i };
-                let back = if reverse { x + 1 } else { x.wrapping_sub(1) };
-                let ahead = if reverse { x.wrapping_sub(1) } else { x + 1 };
-                let here = row[x];
-                *p2 = [params.p2; 4];
-                if back < w {
-                    p2[0] = step(here, row[back]);
-                }
-                if let Some(up) = above {
-                    p2[1] = step(here, up[x]);
-                    if back < w {
-                        p2[2] = step(here, up[back]);
-                    }
-                    if ahead < w {
-                        p2[3] = step(here, up[ahead]);
-                    }
-                }
-            }
-            // The horizontal path the other way, indexed by image x.
-            for (x, p2) in p2_back.iter_mut().enumerate() {
-                let from = if reverse { x.wrapping_sub(1) } else { x + 1 };
-                *p2 = if from < w {
-                    step(row[x], row[from])
-                } else {
-                    params.p2
-                };
-            }
+            p2_rows(
+                g.row(y),
+                above,
+                reverse,
+                p2_of,
+                params.p2,
+                &mut p2_row,
+                &mut p2_back,
+            );
         }
         let mut job = RowJob {
             cost_row: costs.row(y, &mut cost_scratch),
@@ -317,6 +293,60 @@ fn run_pass<C: CostRows>(
         std::mem::swap(&mut prev, &mut cur);
         std::mem::swap(&mut prev_min, &mut cur_min);
         on_row(y, &sum_row);
+    }
+}
+
+/// P2 towards each path's previous pixel for one row, by pass position i:
+/// horizontal (x + dx, y), vertical (x, y + dy), diagonals (x + dx, y + dy)
+/// and (x - dx, y + dy), with dx, dy pointing back along the pass; and into
+/// `back` (if not empty), by image x, towards (x - dx, y) for the horizontal
+/// path against the pass. `above` is the row the pass came from (`None` on
+/// its first row); steps leaving the image keep `p2`.
+fn p2_rows(
+    row: &[u8],
+    above: Option<&[u8]>,
+    reverse: bool,
+    p2_of: &[u16; 256],
+    p2: u16,
+    out: &mut [[u16; 4]],
+    back: &mut [u16],
+) {
+    let w = row.len();
+    let step = |a: u8, b: u8| p2_of[a.abs_diff(b) as usize];
+    // In image order: to the left neighbour (x - 1) and the right (x + 1).
+    let to_left = |x: usize| if x > 0 { step(row[x], row[x - 1]) } else { p2 };
+    let to_right = |x: usize| {
+        if x + 1 < w {
+            step(row[x], row[x + 1])
+        } else {
+            p2
+        }
+    };
+    for (i, p) in out.iter_mut().enumerate() {
+        let x = if reverse { w - 1 - i } else { i };
+        let (horizontal, up_left, up_right) = match above {
+            Some(up) => (
+                if reverse { to_right(x) } else { to_left(x) },
+                if x > 0 { step(row[x], up[x - 1]) } else { p2 },
+                if x + 1 < w {
+                    step(row[x], up[x + 1])
+                } else {
+                    p2
+                },
+            ),
+            None => (if reverse { to_right(x) } else { to_left(x) }, p2, p2),
+        };
+        let vertical = above.map_or(p2, |up| step(row[x], up[x]));
+        // Diagonals: back along the pass is up-left going right, up-right
+        // going left.
+        *p = if reverse {
+            [horizontal, vertical, up_right, up_left]
+        } else {
+            [horizontal, vertical, up_left, up_right]
+        };
+    }
+    for (x, p) in back.iter_mut().enumerate() {
+        *p = if reverse { to_left(x) } else { to_right(x) };
     }
 }
 
@@ -474,7 +504,7 @@ fn back_horizontal(job: &mut RowJob<'_>) {
 fn pass<C: CostRows>(
     costs: &C,
     params: &SgmParams,
-    p2_of: &[u16],
+    p2_of: &[u16; 256],
     guide: Option<&GreyImage>,
     plan: &PassPlan,
     isa: Isa,
@@ -635,16 +665,14 @@ fn meeting_in_the_middle<C: CostRows>(
 }
 
 /// The P2 of every grey-level step between neighbours (0..=255).
-fn p2_table(params: &SgmParams, guide: Option<&GreyImage>) -> Vec<u16> {
-    (0..256)
-        .map(|step| match guide {
-            Some(_) if params.p2_gamma > 0.0 => {
-                let g = params.p2_gamma;
-                ((params.p2 as f32 * g / (g + step as f32)).round() as u16).max(params.p1 + 1)
-            }
-            _ => params.p2,
-        })
-        .collect()
+fn p2_table(params: &SgmParams, guide: Option<&GreyImage>) -> [u16; 256] {
+    std::array::from_fn(|step| match guide {
+        Some(_) if params.p2_gamma > 0.0 => {
+            let g = params.p2_gamma;
+            ((params.p2 as f32 * g / (g + step as f32)).round() as u16).max(params.p1 + 1)
+        }
+        _ => params.p2,
+    })
 }
 
 /// Raises its flag when dropped during a panic.

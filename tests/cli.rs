@@ -682,13 +682,12 @@ fn stereo_branch_meets_the_acceptance_figures_on_the_full_phantom() {
         // The triangulated cloud against the true skin.
         assert!(f("eval_surface.mean_mm") < 0.3, "view {view}: {m}");
         assert!(f("eval_surface.p95_mm") < 1.0, "view {view}: {m}");
-        // Every marker visible in both images found, none spurious. (The
-        // issue asks for every error under 0.5 mm; views 0 and 2 reach 0.57
-        // and 0.52 mm: open.)
+        // Every marker visible in both images found within 0.5 mm, none
+        // spurious.
         assert_eq!(f("eval_markers.missed"), 0.0, "view {view}: {m}");
         assert_eq!(f("eval_markers.spurious"), 0.0, "view {view}: {m}");
         assert!(f("eval_markers.mean_error_mm") < 0.3, "view {view}: {m}");
-        assert!(f("eval_markers.max_error_mm") < 0.6, "view {view}: {m}");
+        assert!(f("eval_markers.max_error_mm") < 0.5, "view {view}: {m}");
     }
     // The matcher is swapped by config alone.
     let m = run_metrics(t.path(), "stereo", &["match.op=stereo.block_match"]);

@@ -186,8 +186,8 @@ impl SgmOp {
         SgmOp(
             matcher_spec(
                 "stereo.sgm",
-                4,
-                "Semi-global matching (census or Birchfield-Tomasi costs, 4 or 8 paths) -> Disparity",
+                5,
+                "Semi-global matching (census or Birchfield-Tomasi costs, 5 paths in one pass, or 4 or 8 in two) -> Disparity",
             )
             .param(ParamSpec::choice(
                 "cost",

@@ -8,7 +8,8 @@
 use super::blobs::{MomentEllipse, components, ellipse_fit, open_close, soft_centroid};
 use super::point_from_disparity;
 use crate::calib::StereoRectification;
-use nalgebra::Point3;
+use crate::camera::CameraModel;
+use nalgebra::{Point2, Point3};
 
 /// Hue (deg, 0..360), saturation (0..1) and value (0..1) of an RGB colour
 /// with channels in 0..1 (hexcone model; hue 0 for greys).
@@ -406,6 +407,66 @@ pub fn stereo_markers(
     check_rgb(r, w, h, "right")?;
     let (bl, br) = rayon::join(|| find_blobs(l, w, h, blob), || find_blobs(r, w, h, blob));
     let ((bl, _), (br, _)) = (bl?, br?);
+    pair_and_triangulate(bl, br, rect, pair)
+}
+
+/// [`stereo_markers`] on the images as the cameras took them (before
+/// undistortion and rectification): the blobs are measured there and only
+/// their centroids are mapped into the rectified frame. Resampling an image
+/// blurs a small blob's edges, and with them its sub-pixel centroid (about
+/// 0.1 px on the phantom's thinnest ellipses, 0.3 mm in depth); a point maps
+/// exactly. `cameras` are the rig's left and right cameras.
+pub fn stereo_markers_unrectified(
+    left: (&[u8], usize, usize),
+    right: (&[u8], usize, usize),
+    cameras: (&CameraModel, &CameraModel),
+    rect: &StereoRectification,
+    blob: &BlobParams,
+    pair: &PairParams,
+) -> Result<StereoMarkers, String> {
+    let sides = [(left, cameras.0, "left"), (right, cameras.1, "right")];
+    for ((rgb, w, h), camera, side) in sides {
+        check_rgb(rgb, w, h, side)?;
+        if (w, h) != (camera.width, camera.height) {
+            return Err(format!(
+                "{side} image is {w} x {h} px but its camera is {} x {}",
+                camera.width, camera.height
+            ));
+        }
+    }
+    let find = |((rgb, w, h), camera, side): ((&[u8], usize, usize), &CameraModel, &str)| {
+        let (r, p) = if side == "left" {
+            (&rect.r1, &rect.p1)
+        } else {
+            (&rect.r2, &rect.p2)
+        };
+        let (blobs, _) = find_blobs(rgb, w, h, blob)?;
+        Ok::<_, String>(
+            blobs
+                .into_iter()
+                .map(|b| {
+                    let at = Point2::new(b.x_px, b.y_px);
+                    let q = StereoRectification::rectify_point(camera, r, p, &at);
+                    Blob {
+                        x_px: q.x,
+                        y_px: q.y,
+                        ..b
+                    }
+                })
+                .collect::<Vec<_>>(),
+        )
+    };
+    let (bl, br) = rayon::join(|| find(sides[0]), || find(sides[1]));
+    pair_and_triangulate(bl?, br?, rect, pair)
+}
+
+/// Pairs blobs given in rectified coordinates and triangulates each pair.
+fn pair_and_triangulate(
+    bl: Vec<Blob>,
+    br: Vec<Blob>,
+    rect: &StereoRectification,
+    pair: &PairParams,
+) -> Result<StereoMarkers, String> {
     let markers = pair_blobs(&bl, &br, pair)?
         .into_iter()
         .filter_map(|(i, j)| {

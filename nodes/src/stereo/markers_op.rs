@@ -1,7 +1,8 @@
 //! Node adapter: `stereo.hsv_markers`.
 
-use super::hsv_markers::{BlobParams, PairParams, stereo_markers};
-use fusegraph_engine::value::{Image, Markers, Pixels, Rectification, Table};
+use super::hsv_markers::{BlobParams, PairParams, stereo_markers, stereo_markers_unrectified};
+use crate::camera::CameraModel;
+use fusegraph_engine::value::{Image, Markers, Pixels, Rectification, StereoRig, Table};
 use fusegraph_engine::{
     Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType,
 };
@@ -25,15 +26,28 @@ impl HsvMarkersOp {
         HsvMarkersOp(
             OpSpec::new(
                 "stereo.hsv_markers",
-                2,
+                3,
                 "Coloured markers found by HSV thresholds in both rectified images, paired along rows, triangulated",
             )
-            .input("left", &[ValueType::Image], "Left rectified image, 8-bit RGB")
-            .input("right", &[ValueType::Image], "Right rectified image, 8-bit RGB")
+            .input(
+                "left",
+                &[ValueType::Image],
+                "Left image, 8-bit RGB: rectified, or as taken when `rig` is given",
+            )
+            .input(
+                "right",
+                &[ValueType::Image],
+                "Right image, 8-bit RGB: rectified, or as taken when `rig` is given",
+            )
             .input(
                 "rectification",
                 &[ValueType::Rectification],
-                "The rectification both images went through",
+                "The rectification the pair is (or would be) rectified with",
+            )
+            .optional_input(
+                "rig",
+                &[ValueType::StereoRig],
+                "The rig that took `left` and `right`: the blobs are then measured in the images as taken (no resampling blur) and their centroids mapped into the rectified frame",
             )
             .optional_input("min_disparity", &[ValueType::Scalar], "Smallest disparity of a pair, px")
             .optional_input("max_disparity", &[ValueType::Scalar], "Largest disparity of a pair, px")
@@ -154,7 +168,8 @@ impl Op for HsvMarkersOp {
     fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
         let (left, right) = (inputs.get::<Image>("left")?, inputs.get::<Image>("right")?);
         let rect_value = inputs.get::<Rectification>("rectification")?;
-        if (rect_value.width, rect_value.height) != (left.width, left.height) {
+        let rig = inputs.optional::<StereoRig>("rig")?;
+        if rig.is_none() && (rect_value.width, rect_value.height) != (left.width, left.height) {
             return Err(OpError::invalid(format!(
                 "input `left` is {} x {} px but the rectification makes {} x {} px images",
                 left.width, left.height, rect_value.width, rect_value.height
@@ -192,13 +207,19 @@ impl Op for HsvMarkersOp {
             )));
         }
         let rect = crate::calib::rectification_of(&rect_value);
-        let found = stereo_markers(
-            (rgb8(&left, "left")?, left.width, left.height),
-            (rgb8(&right, "right")?, right.width, right.height),
-            &rect,
-            &blob,
-            &pair,
-        )
+        let left = (rgb8(&left, "left")?, left.width, left.height);
+        let right = (rgb8(&right, "right")?, right.width, right.height);
+        let found = match rig {
+            Some(rig) => {
+                let cameras = (
+                    CameraModel::from_value(&rig.left),
+                    CameraModel::from_value(&rig.right),
+                );
+                let cameras = (&cameras.0, &cameras.1);
+                stereo_markers_unrectified(left, right, cameras, &rect, &blob, &pair)
+            }
+            None => stereo_markers(left, right, &rect, &blob, &pair),
+        }
         .map_err(OpError::invalid)?;
         let positions: Vec<f64> = found
             .markers

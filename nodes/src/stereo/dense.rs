@@ -54,7 +54,9 @@ pub struct SgmConfig {
 }
 
 impl Default for SgmConfig {
-    /// The defaults of `stereo.sgm`: census 9 x 7 (costs 0..62 bits), 8 paths,
+    /// The defaults of `stereo.sgm`: census 9 x 7 (costs 0..62 bits), 5 paths
+    /// in one pass (as accurate as 8 on Middlebury's pairs, 0.5 points more
+    /// bad-1 on the phantom, in 55-70 % of the time),
     /// P1 = 8 and P2 = 80 bits (P2 about a wrong match's cost, so a jump needs
     /// evidence from several pixels) falling at intensity edges (gamma 8 grey
     /// levels), OpenCV's uniqueness (10 %), left-right (1 px) and speckle

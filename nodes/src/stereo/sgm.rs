@@ -1,14 +1,17 @@
 //! Semi-global matching (Hirschmüller, PAMI 2008): matching costs aggregated
-//! along 4 or 8 straight paths with a small penalty P1 for disparity steps of
-//! one pixel and a large one P2 for jumps, then selected by
+//! along 4, 5 or 8 straight paths with a small penalty P1 for disparity steps
+//! of one pixel and a large one P2 for jumps, then selected by
 //! [`super::select`].
 //!
 //! Our own implementation (no maintained Rust crate does SGM; `sgm-rs` is
-//! from 2021 on an old image crate, ../shared/CRATES.md). The paths run in two
-//! passes that run in parallel: top-down with left-to-right (and the two
-//! downward diagonals with 8 paths), and bottom-up with right-to-left (and the
-//! upward diagonals). Each pass keeps only one row of path costs and writes
-//! its sum of paths as 16-bit costs; the two sums add up to the total.
+//! from 2021 on an old image crate, ../shared/CRATES.md). Five paths run in
+//! one top-down pass (as OpenCV's `MODE_SGBM`): left-to-right, the vertical
+//! and the two downward diagonals pixel by pixel, then right-to-left along
+//! the finished row, whose disparities are then selected; only the previous
+//! row's path costs are kept, and horizontal stripes run in parallel. Four or
+//! eight paths run in two passes on two threads: top-down with left-to-right
+//! (and the two downward diagonals with 8 paths), and bottom-up with
+//! right-to-left (and the upward diagonals), meeting in the middle.
 
 use super::cost::CostRows;
 use super::pair::{DisparityRange, GreyImage};

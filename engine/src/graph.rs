@@ -12,6 +12,7 @@
 //! bins = 256                     # every other key is a parameter
 //! ```
 
+use crate::each::{Group, expand};
 use crate::error::{ErrorKind, GraphError, GraphErrors, closest};
 use std::path::{Path, PathBuf};
 
@@ -49,8 +50,10 @@ pub struct GraphDoc {
     pub name: String,
     /// The folder relative paths are resolved against (the graph file's).
     pub base_dir: PathBuf,
-    /// Nodes in file order.
+    /// Nodes in file order (the copies of `[each.NAME]` groups included).
     pub nodes: Vec<NodeDecl>,
+    /// The `[each.NAME]` groups the copies came from.
+    pub groups: Vec<Group>,
 }
 
 const GRAPH_KEYS: &[&str] = &["name", "description"];
@@ -79,6 +82,7 @@ impl GraphDoc {
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| "graph".into());
         let mut nodes = Vec::new();
+        let mut groups = Vec::new();
         for (key, value) in &table {
             match (key.as_str(), value) {
                 ("graph", toml::Value::Table(g)) => {
@@ -107,17 +111,50 @@ impl GraphDoc {
                         }
                     }
                 }
-                ("graph" | "node", _) => errors.push(
+                ("each", toml::Value::Table(g)) => {
+                    for (name, body) in g {
+                        match expand(name, body, file) {
+                            Ok((group, copies)) => {
+                                for (id, body) in copies {
+                                    match parse_node(&id, &body, file) {
+                                        Ok(node) => nodes.push(node),
+                                        Err(mut e) => errors.append(&mut e),
+                                    }
+                                }
+                                groups.push(group);
+                            }
+                            Err(mut e) => errors.append(&mut e),
+                        }
+                    }
+                }
+                ("graph" | "node" | "each", _) => errors.push(
                     err(format!("`{key}` must be a table ([{key}] or [{key}.ID])")).at_key(key),
                 ),
                 _ => errors.push(
-                    err("unknown top-level key; a graph has [graph] and [node.ID] tables".into())
-                        .at_key(key),
+                    err(
+                        "unknown top-level key; a graph has [graph], [node.ID] and [each.NAME] tables"
+                            .into(),
+                    )
+                    .at_key(key),
                 ),
             }
         }
         if nodes.is_empty() && errors.is_empty() {
             errors.push(err("the graph has no nodes (add [node.ID] tables)".into()));
+        }
+        // A group's copies must not take the id of another node.
+        for (i, n) in nodes.iter().enumerate() {
+            if nodes[..i].iter().any(|m| m.id == n.id) {
+                errors.push(
+                    GraphError::file(
+                        ErrorKind::DuplicateId,
+                        file,
+                        "duplicate node id: a copy of an [each] group's node has the id of another node"
+                            .to_string(),
+                    )
+                    .at_node(&n.id),
+                );
+            }
         }
         if !errors.is_empty() {
             return Err(GraphErrors(errors));
@@ -133,6 +170,7 @@ impl GraphDoc {
             name,
             base_dir,
             nodes,
+            groups,
         })
     }
 
@@ -151,47 +189,62 @@ impl GraphDoc {
             .split_once('.')
             .ok_or_else(|| bad(format!("--set {assignment:?}: expected ID.KEY=VALUE")))?;
         let value = parse_cli_value(raw.trim());
-        let ids: Vec<&str> = self.nodes.iter().map(|n| n.id.as_str()).collect();
-        let hint = closest(id, ids.iter().copied()).map(|c| format!(" (did you mean `{c}`?)"));
-        let file = self.file.clone();
-        let node = self.nodes.iter_mut().find(|n| n.id == id).ok_or_else(|| {
-            GraphError::file(
+        // A node, or every copy of a node of an [each] group.
+        let targets: Vec<String> = if self.nodes.iter().any(|n| n.id == id) {
+            vec![id.to_string()]
+        } else if let Some(copies) = self.groups.iter().find_map(|g| g.copies_of(id)) {
+            copies
+        } else {
+            let ids = self
+                .nodes
+                .iter()
+                .map(|n| n.id.as_str())
+                .chain(self.groups.iter().flat_map(|g| g.members.iter().map(String::as_str)));
+            let hint = closest(id, ids).map(|c| format!(" (did you mean `{c}`?)"));
+            return Err(GraphError::file(
                 ErrorKind::BadOverride,
-                &file,
+                &self.file,
                 format!("--set: no node with this id{}", hint.unwrap_or_default()),
             )
             .at_node(id)
-            .at_key(key)
-        })?;
-        let node_err = |msg: &str| {
-            GraphError::file(ErrorKind::BadOverride, &file, format!("--set: {msg}"))
-                .at_node(id)
-                .at_key(key)
+            .at_key(key));
         };
-        if key == "op" {
-            node.op = value
-                .as_str()
-                .ok_or_else(|| node_err("op must be a name"))?
-                .to_string();
-        } else if let Some(port) = key.strip_prefix("in.") {
-            let src = value
-                .as_str()
-                .ok_or_else(|| node_err("an input must be \"node.port\""))?;
-            node.inputs.retain(|i| i.port != port);
-            // An empty source disconnects the input (validation then says if
-            // it was required).
-            if !src.is_empty() {
-                node.inputs
-                    .push(parse_input(port, src).map_err(|m| node_err(&m))?);
-            }
-        } else {
-            match node.params.iter_mut().find(|(k, _)| k == key) {
-                Some((_, v)) => *v = value,
-                None => node.params.push((key.to_string(), value)),
-            }
+        let file = self.file.clone();
+        for target in targets {
+            let node = self
+                .nodes
+                .iter_mut()
+                .find(|n| n.id == target)
+                .expect("targets are node ids");
+            set_on_node(node, key, &value).map_err(|msg| {
+                GraphError::file(ErrorKind::BadOverride, &file, format!("--set: {msg}"))
+                    .at_node(id)
+                    .at_key(key)
+            })?;
         }
         Ok(())
     }
+}
+
+/// Sets `key` of `node` to `value` (see [`GraphDoc::apply_set`]).
+fn set_on_node(node: &mut NodeDecl, key: &str, value: &toml::Value) -> Result<(), String> {
+    if key == "op" {
+        node.op = value.as_str().ok_or("op must be a name")?.to_string();
+    } else if let Some(port) = key.strip_prefix("in.") {
+        let src = value.as_str().ok_or("an input must be \"node.port\"")?;
+        node.inputs.retain(|i| i.port != port);
+        // An empty source disconnects the input (validation then says if
+        // it was required).
+        if !src.is_empty() {
+            node.inputs.push(parse_input(port, src)?);
+        }
+    } else {
+        match node.params.iter_mut().find(|(k, _)| k == key) {
+            Some((_, v)) => *v = value.clone(),
+            None => node.params.push((key.to_string(), value.clone())),
+        }
+    }
+    Ok(())
 }
 
 fn parse_cli_value(raw: &str) -> toml::Value {
@@ -462,5 +515,52 @@ operation = "mul"
         assert!(e.message.contains("did you mean `a`"), "{e}");
         assert!(g.apply_set("a.value").is_err());
         assert!(g.apply_set("novalue=1").is_err());
+    }
+
+    #[test]
+    fn each_groups_copy_nodes_and_take_group_wide_sets() {
+        let text = r#"
+[node.calib]
+op = "math.constant"
+value = 1.0
+
+[each.view]
+values = [0, 1]
+
+[each.view.node.read]
+op = "math.constant"
+value = "{view}"
+
+[each.view.node.scale]
+op = "math.binary"
+in.a = "read.value"
+in.b = "calib.value"
+operation = "mul"
+
+[node.sum]
+op = "math.binary"
+in.a = "scale_0.value"
+in.b = "scale_1.value"
+"#;
+        let mut g = parse(text).unwrap();
+        let ids: Vec<&str> = g.nodes.iter().map(|n| n.id.as_str()).collect();
+        // [node] tables first, then the groups' copies, value by value.
+        assert_eq!(ids, ["calib", "sum", "read_0", "scale_0", "read_1", "scale_1"]);
+        let scale1 = &g.nodes[5];
+        assert_eq!(scale1.inputs[0].source_node, "read_1");
+        assert_eq!(scale1.inputs[1].source_node, "calib");
+        // A set on the written id reaches every copy; one on a copy, that copy.
+        g.apply_set("scale.operation=add").unwrap();
+        g.apply_set("scale_1.op=math.other").unwrap();
+        for (i, op) in [(3, "math.binary"), (5, "math.other")] {
+            assert_eq!(g.nodes[i].op, op);
+            assert_eq!(g.nodes[i].params[0].1.as_str(), Some("add"));
+        }
+        let e = g.apply_set("scal.operation=add").unwrap_err();
+        assert!(e.message.contains("did you mean `scale`"), "{e}");
+        // A copy may not take another node's id.
+        let clash = format!("{text}\n[node.read_0]\nop = \"x\"\n");
+        let e = parse(&clash).unwrap_err();
+        assert_eq!(e.0[0].kind, ErrorKind::DuplicateId);
     }
 }

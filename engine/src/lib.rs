@@ -8,6 +8,7 @@
 
 pub mod cache;
 pub mod dot;
+pub mod each;
 pub mod error;
 pub mod graph;
 pub mod hash;

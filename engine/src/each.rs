@@ -17,7 +17,8 @@
 //!
 //! Copy ids are the written id, `_` and the value (`left_0`). In every string
 //! of a copy, `{NAME}` becomes the value and `{NAME:0W}` the value padded with
-//! zeros to W digits; an input naming a node of the same group means that
+//! zeros to W digits (a string that is only `"{NAME}"` becomes the value
+//! itself, a number if it is one: `view = "{view}"`); an input naming a node of the same group means that
 //! node's copy, any other input is left as written. Nodes outside the group
 //! name the copies by their ids (`grey_2.image`), and `--set grey.KEY=...`
 //! sets KEY on every copy of `grey`.
@@ -46,6 +47,9 @@ impl Group {
     }
 }
 
+/// Node tables as written: (id, body).
+type NodeTables = Vec<(String, toml::Value)>;
+
 fn copy_id(id: &str, value: &str) -> String {
     format!("{id}_{value}")
 }
@@ -56,17 +60,18 @@ pub(crate) fn expand(
     name: &str,
     body: &toml::Value,
     file: &Path,
-) -> Result<(Group, Vec<(String, toml::Value)>), Vec<GraphError>> {
-    let err = |msg: String| {
-        GraphError::file(ErrorKind::Structure, file, format!("[each.{name}]: {msg}"))
-    };
+) -> Result<(Group, NodeTables), Vec<GraphError>> {
+    let err =
+        |msg: String| GraphError::file(ErrorKind::Structure, file, format!("[each.{name}]: {msg}"));
     if name.is_empty() || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
         return Err(vec![err(
             "a group name may hold only letters, digits and '_'".into(),
         )]);
     }
     let Some(body) = body.as_table() else {
-        return Err(vec![err("must be a table with `values` and [each.NAME.node.ID] tables".into())]);
+        return Err(vec![err(
+            "must be a table with `values` and [each.NAME.node.ID] tables".into(),
+        )]);
     };
     let mut errors = Vec::new();
     for key in body.keys().filter(|k| *k != "values" && *k != "node") {
@@ -142,11 +147,19 @@ pub(crate) fn expand(
     ))
 }
 
-/// `v` with `{name}` and `{name:0W}` in every string replaced by `value`.
+/// `v` with `{name}` and `{name:0W}` in every string replaced by `value`; a
+/// string that is just `{name}` becomes the value itself, a number when it
+/// is one (`view = "{view}"` is the integer view).
 fn substitute(v: &toml::Value, name: &str, value: &str) -> toml::Value {
     match v {
+        toml::Value::String(s) if *s == format!("{{{name}}}") => value
+            .parse::<i64>()
+            .map(toml::Value::Integer)
+            .unwrap_or_else(|_| toml::Value::String(value.to_string())),
         toml::Value::String(s) => toml::Value::String(fill(s, name, value)),
-        toml::Value::Array(a) => toml::Value::Array(a.iter().map(|x| substitute(x, name, value)).collect()),
+        toml::Value::Array(a) => {
+            toml::Value::Array(a.iter().map(|x| substitute(x, name, value)).collect())
+        }
         toml::Value::Table(t) => toml::Value::Table(
             t.iter()
                 .map(|(k, x)| (k.clone(), substitute(x, name, value)))
@@ -221,11 +234,14 @@ in.rig = "calib.rig"
         assert_eq!(ids, ["read_0", "grey_0", "read_5", "grey_5"]);
         let read5 = &nodes[2].1;
         assert_eq!(read5["file"].as_str(), Some("left_05.png"));
-        assert_eq!(read5["sizes"][0].as_str(), Some("5"));
+        assert_eq!(read5["sizes"][0].as_integer(), Some(5));
         let grey5 = &nodes[3].1;
         assert_eq!(grey5["in"]["image"].as_str(), Some("read_5.image"));
         assert_eq!(grey5["in"]["rig"].as_str(), Some("calib.rig"));
-        assert_eq!(group.copies_of("grey"), Some(vec!["grey_0".into(), "grey_5".into()]));
+        assert_eq!(
+            group.copies_of("grey"),
+            Some(vec!["grey_0".into(), "grey_5".into()])
+        );
         assert_eq!(group.copies_of("calib"), None);
     }
 
@@ -234,7 +250,10 @@ in.rig = "calib.rig"
         let bad = |text: &str| {
             let body: toml::Value = toml::from_str(text).unwrap();
             let e = expand("view", &body, Path::new("g.toml")).unwrap_err();
-            e.iter().map(|e| e.to_string()).collect::<Vec<_>>().join("; ")
+            e.iter()
+                .map(|e| e.to_string())
+                .collect::<Vec<_>>()
+                .join("; ")
         };
         assert!(bad("values = []\n[node.a]\nop = \"x\"").contains("non-empty list"));
         assert!(bad("values = [1, 1]\n[node.a]\nop = \"x\"").contains("appears twice"));

@@ -195,11 +195,11 @@ impl GraphDoc {
         } else if let Some(copies) = self.groups.iter().find_map(|g| g.copies_of(id)) {
             copies
         } else {
-            let ids = self
-                .nodes
-                .iter()
-                .map(|n| n.id.as_str())
-                .chain(self.groups.iter().flat_map(|g| g.members.iter().map(String::as_str)));
+            let ids = self.nodes.iter().map(|n| n.id.as_str()).chain(
+                self.groups
+                    .iter()
+                    .flat_map(|g| g.members.iter().map(String::as_str)),
+            );
             let hint = closest(id, ids).map(|c| format!(" (did you mean `{c}`?)"));
             return Err(GraphError::file(
                 ErrorKind::BadOverride,
@@ -545,7 +545,10 @@ in.b = "scale_1.value"
         let mut g = parse(text).unwrap();
         let ids: Vec<&str> = g.nodes.iter().map(|n| n.id.as_str()).collect();
         // [node] tables first, then the groups' copies, value by value.
-        assert_eq!(ids, ["calib", "sum", "read_0", "scale_0", "read_1", "scale_1"]);
+        assert_eq!(
+            ids,
+            ["calib", "sum", "read_0", "scale_0", "read_1", "scale_1"]
+        );
         let scale1 = &g.nodes[5];
         assert_eq!(scale1.inputs[0].source_node, "read_1");
         assert_eq!(scale1.inputs[1].source_node, "calib");

@@ -108,6 +108,33 @@ impl PointCloud {
     pub fn is_empty(&self) -> bool {
         self.points.is_empty()
     }
+
+    /// The points whose `keep` is true (one flag per point), with their
+    /// colours and normals.
+    pub fn select(&self, keep: &[bool]) -> Result<PointCloud, ValueError> {
+        check_len("PointCloud select flags", keep.len() * 3, self.points.len())?;
+        let pick = |v: &[f32]| -> Vec<f32> {
+            v.chunks_exact(3)
+                .zip(keep)
+                .filter(|(_, k)| **k)
+                .flat_map(|(c, _)| c.iter().copied())
+                .collect()
+        };
+        let colors = self.colors.as_ref().map(|c| {
+            c.chunks_exact(3)
+                .zip(keep)
+                .filter(|(_, k)| **k)
+                .flat_map(|(c, _)| c.iter().copied())
+                .collect::<Vec<u8>>()
+                .into()
+        });
+        PointCloud::new(
+            pick(&self.points),
+            colors,
+            self.normals.as_ref().map(|n| pick(n).into()),
+            self.frame.clone(),
+        )
+    }
 }
 
 /// Marker centres (mm) with an id each.

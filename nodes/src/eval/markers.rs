@@ -171,3 +171,43 @@ mod tests {
         assert!(err.contains("view 2 does not exist"), "{err}");
     }
 }
+
+/// The true marker each of `found` is (the nearest of `truth`, if within
+/// `max_distance_mm`), by index into `truth`.
+pub fn identify_markers(
+    found: &[[f64; 3]],
+    truth: &[[f64; 3]],
+    max_distance_mm: f64,
+) -> Vec<Option<usize>> {
+    found
+        .iter()
+        .map(|f| {
+            truth
+                .iter()
+                .enumerate()
+                .map(|(j, t)| {
+                    let d = ((f[0] - t[0]).powi(2) + (f[1] - t[1]).powi(2) + (f[2] - t[2]).powi(2))
+                        .sqrt();
+                    (j, d)
+                })
+                .filter(|(_, d)| *d <= max_distance_mm)
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .map(|(j, _)| j)
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod identify_tests {
+    use super::*;
+
+    #[test]
+    fn nearest_true_marker_within_reach() {
+        let truth = [[0.0, 0.0, 0.0], [10.0, 0.0, 0.0]];
+        let found = [[9.0, 0.5, 0.0], [0.2, 0.0, 0.0], [50.0, 0.0, 0.0]];
+        assert_eq!(
+            identify_markers(&found, &truth, 3.0),
+            [Some(1), Some(0), None]
+        );
+    }
+}

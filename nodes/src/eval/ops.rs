@@ -3,7 +3,7 @@
 
 use super::{
     bad_metric_name, compare_calibration, compare_markers, disparity_errors, frame_to_world,
-    skin_distances, true_marker_centres,
+    identify_markers, skin_distances, true_marker_centres,
 };
 use crate::camera::isometry_from_matrix;
 use crate::phantom::truth_input;
@@ -104,6 +104,109 @@ impl Op for EvalMarkersOp {
         ctx.metric("partly_hidden_found", partly_hidden.len() as f64);
         ctx.metric("partly_hidden_max_error_mm", stats(&partly_hidden).1);
         Ok(Outputs::new().with("found", c.pairs.len() as f64))
+    }
+}
+
+pub(crate) struct EvalCorrespondencesOp(OpSpec);
+
+impl EvalCorrespondencesOp {
+    pub(crate) fn new() -> Self {
+        EvalCorrespondencesOp(
+            OpSpec::new(
+                "eval.correspondences",
+                1,
+                "Whether matched marker pairs (e.g. camera -> MRI) are the same true markers",
+            )
+            .input(
+                "source",
+                &[ValueType::Markers],
+                "Matched markers, in pair order (frame mri_lps, world or camera_left)",
+            )
+            .input(
+                "target",
+                &[ValueType::Markers],
+                "Their partners, in the same order",
+            )
+            .input("truth", &[ValueType::Path], "ground_truth.json")
+            .param(ParamSpec::choice(
+                "source_reference",
+                &["world_face", "world_gel", "mri_gel"],
+                "The true centres the source markers are measured at (faces for camera markers)",
+            ))
+            .param(ParamSpec::choice(
+                "target_reference",
+                &["mri_gel", "world_gel", "world_face"],
+                "The true centres the target markers are measured at (gel cores for MRI markers)",
+            ))
+            .param(
+                ParamSpec::float(
+                    "max_distance_mm",
+                    5.0,
+                    "mm",
+                    "Farther from every true marker is unknown",
+                )
+                .at_least(0.0),
+            )
+            .param(
+                ParamSpec::int(
+                    "view",
+                    0,
+                    "",
+                    "Which view's left camera, for markers in camera_left",
+                )
+                .at_least(0.0),
+            )
+            .output(
+                "wrong",
+                ValueType::Scalar,
+                "Pairs of two different (or unknown) markers",
+            ),
+        )
+    }
+}
+
+impl Op for EvalCorrespondencesOp {
+    fn spec(&self) -> &OpSpec {
+        &self.0
+    }
+
+    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
+        let truth = truth_input(inputs)?;
+        let view = params.count("view")?;
+        let reach = params.float("max_distance_mm")?;
+        let mut ids = Vec::new();
+        for (port, reference) in [
+            ("source", "source_reference"),
+            ("target", "target_reference"),
+        ] {
+            let m = inputs.get::<Markers>(port)?;
+            let centres = true_marker_centres(&truth, &params.string(reference)?, &m.frame, view)
+                .map_err(|e| OpError::invalid(format!("{port}: {e}")))?;
+            let points: Vec<[f64; 3]> = centres.iter().map(|c| c.0).collect();
+            let found: Vec<[f64; 3]> = m
+                .positions_mm
+                .chunks(3)
+                .map(|c| [c[0], c[1], c[2]])
+                .collect();
+            ids.push(identify_markers(&found, &points, reach));
+        }
+        if ids[0].len() != ids[1].len() {
+            return Err(OpError::invalid(format!(
+                "{} source markers but {} targets: pairs must come in the same order",
+                ids[0].len(),
+                ids[1].len()
+            )));
+        }
+        let right = ids[0]
+            .iter()
+            .zip(&ids[1])
+            .filter(|(a, b)| a.is_some() && a == b)
+            .count();
+        let wrong = ids[0].len() - right;
+        ctx.metric("pairs", ids[0].len() as f64);
+        ctx.metric("right", right as f64);
+        ctx.metric("wrong", wrong as f64);
+        Ok(Outputs::new().with("wrong", wrong as f64))
     }
 }
 

@@ -36,6 +36,7 @@ pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.register(Arc::new(ops::GenerateOp::new()))?;
     registry.register(Arc::new(ops::CameraSurfaceOp::new()))?;
     registry.register(Arc::new(ops::RigPoseOp::new()))?;
+    registry.register(Arc::new(ops::LesionsOp::new()))?;
     registry.register(Arc::new(ops::TrueDisparityOp::new()))?;
     Ok(())
 }

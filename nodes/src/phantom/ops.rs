@@ -349,3 +349,38 @@ pub(crate) fn truth_input(inputs: &Inputs) -> Result<GroundTruth, OpError> {
     optional_truth_input(inputs)?
         .ok_or_else(|| OpError::Input("truth".into(), "not connected".into()))
 }
+
+pub(crate) struct LesionsOp(OpSpec);
+
+impl LesionsOp {
+    pub(crate) fn new() -> Self {
+        LesionsOp(
+            OpSpec::new(
+                "phantom.lesions",
+                1,
+                "The phantom's lesion centres in MRI space: the targets a radiologist would mark on the scan",
+            )
+            .input("truth", &[ValueType::Path], "ground_truth.json of a phantom")
+            .output(
+                "targets",
+                ValueType::Markers,
+                "Lesion centres, mm, frame mri_lps; ids the lesion numbers",
+            ),
+        )
+    }
+}
+
+impl Op for LesionsOp {
+    fn spec(&self) -> &OpSpec {
+        &self.0
+    }
+
+    fn run(&self, inputs: &Inputs, _: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
+        let truth = truth_input(inputs)?;
+        let positions: Vec<f64> = truth.lesions.iter().flat_map(|l| l.center_mri_mm).collect();
+        let ids: Vec<u32> = truth.lesions.iter().map(|l| l.id).collect();
+        ctx.metric("targets", ids.len() as f64);
+        let targets = Markers::new(positions, ids, "mri_lps").map_err(|e| OpError::invalid(e.0))?;
+        Ok(Outputs::new().with("targets", targets))
+    }
+}

@@ -6,12 +6,14 @@ mod icp;
 mod match_markers;
 mod multiview;
 mod ops;
+mod plane;
 mod procrustes;
 
 pub use cloud::{Nearest, bumpy_ellipsoid, estimate_normals, sample_mesh, voxel_downsample};
 pub use icp::{IcpMethod, IcpParams, IcpResult, IcpStep, Kernel, icp};
 pub use match_markers::{MarkerMatch, match_markers};
-pub use multiview::{Multiview, View, register_views};
+pub use multiview::{MergedMarker, Multiview, View, merge_markers, register_views};
+pub use plane::{Plane, dominant_plane};
 pub use procrustes::{Similarity, umeyama};
 
 use fusegraph_engine::Registry;
@@ -24,10 +26,12 @@ pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.register(Arc::new(ops::ProcrustesOp::new()))?;
     registry.register(Arc::new(ops::FromMeshOp::new()))?;
     registry.register(Arc::new(ops::DownsampleOp::new()))?;
+    registry.register(Arc::new(ops::RemovePlaneOp::new()))?;
     registry.register(Arc::new(ops::NormalsOp::new()))?;
     registry.register(Arc::new(ops::TransformCloudOp::new()))?;
     registry.register(Arc::new(ops::IcpOp::new()))?;
     registry.register(Arc::new(ops::EvaluateOp::new()))?;
+    registry.register(Arc::new(ops::MapTargetsOp::new()))?;
     registry.register(Arc::new(ops::MultiviewOp::new()))?;
     Ok(())
 }

@@ -112,3 +112,85 @@ pub fn register_views(
         view_rmse_mm,
     })
 }
+
+/// One marker seen in several views: the mean of its sightings.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MergedMarker {
+    /// Mean position, in the frame of the poses, mm.
+    pub position: Point3<f64>,
+    /// Views that saw it.
+    pub views: usize,
+    /// Largest distance of a sighting from the mean, mm.
+    pub spread_mm: f64,
+}
+
+/// Markers found in several views (each set in its view's frame, with that
+/// view's pose) as one set: sightings closer than `merge_mm` to a marker
+/// already gathered join it (its position the running mean); the others start
+/// new markers. Views are taken in order, so the result does not depend on
+/// anything but the input.
+pub fn merge_markers(
+    sets: &[(Vec<Point3<f64>>, Isometry3<f64>)],
+    merge_mm: f64,
+) -> Vec<MergedMarker> {
+    let mut gathered: Vec<Vec<Point3<f64>>> = Vec::new();
+    let mean = |s: &[Point3<f64>]| {
+        Point3::from(s.iter().map(|p| p.coords).sum::<Vector3<f64>>() / s.len() as f64)
+    };
+    for (points, pose) in sets {
+        for p in points.iter().map(|p| pose * p) {
+            let nearest = gathered
+                .iter()
+                .enumerate()
+                .map(|(i, g)| (i, (mean(g) - p).norm()))
+                .filter(|(_, d)| *d < merge_mm)
+                .min_by(|a, b| a.1.total_cmp(&b.1));
+            match nearest {
+                Some((i, _)) => gathered[i].push(p),
+                None => gathered.push(vec![p]),
+            }
+        }
+    }
+    gathered
+        .iter()
+        .map(|g| {
+            let position = mean(g);
+            MergedMarker {
+                position,
+                views: g.len(),
+                spread_mm: g.iter().map(|p| (p - position).norm()).fold(0.0, f64::max),
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod merge_tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    #[test]
+    fn sightings_of_one_marker_merge_and_others_stay_apart() {
+        // Two views 100 mm apart, seeing two markers (one in both).
+        let pose0 = Isometry3::identity();
+        let pose1 = Isometry3::from_parts(
+            Translation3::new(100.0, 0.0, 0.0),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, 0.3),
+        );
+        let shared = Point3::new(10.0, 20.0, 500.0);
+        let other = Point3::new(40.0, 20.0, 500.0);
+        let noise = Vector3::new(0.2, 0.0, 0.0);
+        let sets = vec![
+            (vec![shared, other], pose0),
+            (vec![pose1.inverse() * (shared + noise)], pose1),
+        ];
+        let merged = merge_markers(&sets, 4.0);
+        assert_eq!(merged.len(), 2);
+        assert_eq!(merged[0].views, 2);
+        assert!((merged[0].position - (shared + noise * 0.5)).norm() < 1e-9);
+        assert!((merged[0].spread_mm - 0.1).abs() < 1e-9);
+        assert_eq!((merged[1].views, merged[1].position), (1, other));
+        // A merge radius wider than their spacing joins them.
+        assert_eq!(merge_markers(&sets, 40.0).len(), 1);
+    }
+}

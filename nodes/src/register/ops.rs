@@ -364,6 +364,77 @@ impl Op for DownsampleOp {
     }
 }
 
+pub(crate) struct RemovePlaneOp(OpSpec);
+
+impl RemovePlaneOp {
+    pub(crate) fn new() -> Self {
+        RemovePlaneOp(
+            OpSpec::new(
+                "cloud.remove_plane",
+                1,
+                "Removes the dominant plane (the table under the object) and what lies beyond it, by RANSAC",
+            )
+            .input("cloud", &[ValueType::PointCloud], "The cloud (camera frame: the camera is at the origin)")
+            .param(
+                ParamSpec::float("threshold_mm", 3.0, "mm", "Points this close to the plane are on it")
+                    .at_least(1e-3),
+            )
+            .param(
+                ParamSpec::float(
+                    "min_fraction",
+                    0.2,
+                    "",
+                    "Remove the plane only if it holds at least this fraction of the points (else there is no table)",
+                )
+                .range(0.0, 1.0),
+            )
+            .param(ParamSpec::int("iterations", 300, "", "RANSAC trials").range(1.0, 100000.0))
+            .param(ParamSpec::int("seed", 1, "", "RANSAC seed").at_least(0.0))
+            .output(
+                "cloud",
+                ValueType::PointCloud,
+                "The points off the plane on the camera's side (normals and colours kept)",
+            ),
+        )
+    }
+}
+
+impl Op for RemovePlaneOp {
+    fn spec(&self) -> &OpSpec {
+        &self.0
+    }
+    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
+        let c = inputs.get::<PointCloud>("cloud")?;
+        let pts = cloud_points(&c);
+        let threshold = params.float("threshold_mm")?;
+        let found = dominant_plane(
+            &pts,
+            threshold,
+            params.count("iterations")?,
+            params.int("seed")? as u64,
+        );
+        let keep: Vec<bool> = match found {
+            Some((plane, held))
+                if held as f64 >= params.float("min_fraction")? * pts.len() as f64 =>
+            {
+                // The camera's side of the plane is where the origin is.
+                let side = -plane.distance(&Point3::origin()).signum();
+                ctx.metric("plane_fraction", held as f64 / pts.len() as f64);
+                pts.iter()
+                    .map(|p| side * plane.distance(p) < -threshold)
+                    .collect()
+            }
+            _ => {
+                ctx.metric("plane_fraction", 0.0);
+                vec![true; pts.len()]
+            }
+        };
+        let kept = keep.iter().filter(|k| **k).count();
+        ctx.metric("points", kept as f64);
+        Ok(Outputs::new().with("cloud", c.select(&keep).map_err(|e| OpError::invalid(e.0))?))
+    }
+}
+
 impl NormalsOp {
     pub(crate) fn new() -> Self {
         NormalsOp(
@@ -739,8 +810,8 @@ impl MultiviewOp {
     pub(crate) fn new() -> Self {
         let mut spec = OpSpec::new(
             "register.multiview",
-            1,
-            "Several camera clouds with rough poses -> one cloud: pairwise ICP around the ring, then global adjustment",
+            2,
+            "Several camera clouds (and their markers) with rough poses -> one cloud and one marker set: pairwise ICP around the ring, then global adjustment",
         );
         for i in 0..MAX_VIEWS {
             let doc = format!("View {i}'s cloud, in its camera frame");
@@ -752,6 +823,11 @@ impl MultiviewOp {
                 spec.optional_input(&format!("cloud{i}"), &[ValueType::PointCloud], &doc)
                     .optional_input(&format!("pose{i}"), &[ValueType::Transform], &pose_doc)
             };
+            spec = spec.optional_input(
+                &format!("markers{i}"),
+                &[ValueType::Markers],
+                &format!("View {i}'s markers, in its cloud's frame"),
+            );
         }
         MultiviewOp(
             spec.param(
@@ -778,6 +854,20 @@ impl MultiviewOp {
                 .at_least(0.0),
             )
             .param(ParamSpec::int("rounds", 2, "", "Rounds of global adjustment").range(1.0, 20.0))
+            .param(ParamSpec::choice(
+                "frame",
+                &["world", "first_view"],
+                "Frame of the outputs: world (the poses' frame), or the first view's camera frame (its refined pose taken as the origin)",
+            ))
+            .param(
+                ParamSpec::float(
+                    "merge_mm",
+                    4.0,
+                    "mm",
+                    "Marker sightings from different views closer than this are one marker",
+                )
+                .at_least(0.0),
+            )
             .param(
                 ParamSpec::int(
                     "normals_k",
@@ -790,12 +880,17 @@ impl MultiviewOp {
             .output(
                 "cloud",
                 ValueType::PointCloud,
-                "All views in the world frame, coloured by view",
+                "All views in the output frame, coloured by view",
             )
             .output(
                 "poses",
                 ValueType::Table,
-                "view, then the 3 x 4 camera -> world matrix row by row (mm)",
+                "view, then the 3 x 4 camera -> output frame matrix row by row (mm)",
+            )
+            .output(
+                "markers",
+                ValueType::Markers,
+                "Every view's markers in the output frame, sightings of one marker merged (empty without marker inputs)",
             ),
         )
     }
@@ -807,12 +902,31 @@ impl Op for MultiviewOp {
     }
     fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
         let k = params.count("normals_k")?;
-        let (mut views, mut rough) = (Vec::new(), Vec::new());
+        let (mut views, mut rough, mut markers) = (Vec::new(), Vec::new(), Vec::new());
+        let mut frame = String::new();
         for i in 0..MAX_VIEWS {
             let cloud = inputs.optional::<PointCloud>(&format!("cloud{i}"))?;
             let pose = inputs.optional::<Transform>(&format!("pose{i}"))?;
+            let seen = inputs.optional::<Markers>(&format!("markers{i}"))?;
             match (cloud, pose) {
                 (Some(c), Some(t)) => {
+                    if let Some(m) = &seen
+                        && m.frame != c.frame
+                    {
+                        return Err(OpError::invalid(format!(
+                            "markers{i} are in `{}` but cloud{i} in `{}`",
+                            m.frame, c.frame
+                        )));
+                    }
+                    markers.push(seen.map(|m| {
+                        m.positions_mm
+                            .chunks(3)
+                            .map(|p| Point3::new(p[0], p[1], p[2]))
+                            .collect::<Vec<_>>()
+                    }));
+                    if frame.is_empty() {
+                        frame = c.frame.clone();
+                    }
                     if t.from != c.frame || t.to != "world" {
                         return Err(OpError::invalid(format!(
                             "pose{i} maps `{}` -> `{}`; it must map the cloud's frame `{}` -> `world`",
@@ -827,10 +941,10 @@ impl Op for MultiviewOp {
                     views.push(View { points, normals });
                     rough.push(transform_isometry(&t));
                 }
-                (None, None) => {}
+                (None, None) if seen.is_none() => {}
                 _ => {
                     return Err(OpError::invalid(format!(
-                        "view {i}: connect both cloud{i} and pose{i}, or neither"
+                        "view {i}: connect both cloud{i} and pose{i} (and optionally markers{i}), or none"
                     )));
                 }
             }
@@ -844,8 +958,37 @@ impl Op for MultiviewOp {
             tolerance: 1e-7,
             voxel_sizes_mm: params.float_list("voxel_sizes_mm")?,
         };
-        let m = register_views(&views, &rough, &p, params.count("rounds")?)
+        let mut m = register_views(&views, &rough, &p, params.count("rounds")?)
             .map_err(OpError::invalid)?;
+        let out_frame = if params.string("frame")? == "first_view" {
+            let origin = m.poses[0].inverse();
+            for pose in &mut m.poses {
+                *pose = origin * *pose;
+            }
+            frame
+        } else {
+            "world".to_string()
+        };
+        let sightings: Vec<(Vec<Point3<f64>>, Isometry3<f64>)> = markers
+            .into_iter()
+            .zip(&m.poses)
+            .filter_map(|(seen, pose)| seen.map(|s| (s, *pose)))
+            .collect();
+        let merged = merge_markers(&sightings, params.float("merge_mm")?);
+        ctx.metric("markers", merged.len() as f64);
+        ctx.metric(
+            "marker_spread_max_mm",
+            merged.iter().map(|m| m.spread_mm).fold(0.0, f64::max),
+        );
+        let merged_markers = Markers::new(
+            merged
+                .iter()
+                .flat_map(|m| [m.position.x, m.position.y, m.position.z])
+                .collect::<Vec<f64>>(),
+            (0..merged.len() as u32).collect::<Vec<u32>>(),
+            &out_frame,
+        )
+        .map_err(|e| OpError::invalid(e.0))?;
         let rmse = m.view_rmse_mm.iter().sum::<f64>() / m.view_rmse_mm.len() as f64;
         ctx.metric("rmse_mm", rmse);
         ctx.metric("views", views.len() as f64);
@@ -878,8 +1021,139 @@ impl Op for MultiviewOp {
         Ok(Outputs::new()
             .with(
                 "cloud",
-                make_cloud(&pts, None, Some(colors.into()), "world")?,
+                make_cloud(&pts, None, Some(colors.into()), &out_frame)?,
             )
-            .with("poses", poses))
+            .with("poses", poses)
+            .with("markers", merged_markers))
+    }
+}
+
+pub(crate) struct MapTargetsOp(OpSpec);
+
+impl MapTargetsOp {
+    pub(crate) fn new() -> Self {
+        MapTargetsOp(
+            OpSpec::new(
+                "register.map_targets",
+                1,
+                "Targets marked in MRI (lesions) mapped into camera (robot) space with a registration",
+            )
+            .input(
+                "targets",
+                &[ValueType::Markers],
+                "Targets, mm, in one frame of the transform (e.g. mri_lps)",
+            )
+            .input(
+                "transform",
+                &[ValueType::Transform],
+                "The registration, either way between the targets' frame and the camera's",
+            )
+            .optional_input(
+                "truth",
+                &[ValueType::Path],
+                "ground_truth.json: the targets' true camera positions (targets in mri_lps, camera_left of `view`)",
+            )
+            .param(ParamSpec::int("view", 0, "", "Phantom view whose left camera is camera_left").at_least(0.0))
+            .output(
+                "targets",
+                ValueType::Markers,
+                "The targets in the transform's other frame (camera_left), same ids",
+            ),
+        )
+    }
+}
+
+/// `targets` (frame `from`) through `transform` in whichever direction starts
+/// at `from`: the mapped points and the frame they are in.
+pub fn map_targets(
+    targets: &[Point3<f64>],
+    from: &str,
+    transform: &Transform,
+) -> Result<(Vec<Point3<f64>>, String), String> {
+    let iso = transform_isometry(transform);
+    let (iso, to) = if transform.from == from {
+        (iso, transform.to.clone())
+    } else if transform.to == from {
+        (iso.inverse(), transform.from.clone())
+    } else {
+        return Err(format!(
+            "the targets are in `{from}` but the transform maps `{}` -> `{}`",
+            transform.from, transform.to
+        ));
+    };
+    Ok((targets.iter().map(|p| iso * p).collect(), to))
+}
+
+impl Op for MapTargetsOp {
+    fn spec(&self) -> &OpSpec {
+        &self.0
+    }
+    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
+        let targets = inputs.get::<Markers>("targets")?;
+        let transform = inputs.get::<Transform>("transform")?;
+        let points: Vec<Point3<f64>> = targets
+            .positions_mm
+            .chunks(3)
+            .map(|p| Point3::new(p[0], p[1], p[2]))
+            .collect();
+        let (mapped, frame) =
+            map_targets(&points, &targets.frame, &transform).map_err(OpError::invalid)?;
+        ctx.metric("targets", mapped.len() as f64);
+        if let Some(truth) = crate::phantom::optional_truth_input(inputs)? {
+            if targets.frame != "mri_lps" || frame != "camera_left" {
+                return Err(OpError::invalid(format!(
+                    "with a truth, targets map mri_lps -> camera_left, not `{}` -> `{frame}`",
+                    targets.frame
+                )));
+            }
+            let truth_mc = true_mri_to_camera(&truth, params.count("view")?)?;
+            let errors: Vec<f64> = points
+                .iter()
+                .zip(&mapped)
+                .map(|(p, m)| (truth_mc * p - m).norm())
+                .collect();
+            ctx.metric(
+                "target_error_mm",
+                errors.iter().sum::<f64>() / errors.len().max(1) as f64,
+            );
+            ctx.metric(
+                "target_error_max_mm",
+                errors.iter().copied().fold(0.0, f64::max),
+            );
+        }
+        let out = Markers::new(
+            mapped
+                .iter()
+                .flat_map(|p| [p.x, p.y, p.z])
+                .collect::<Vec<f64>>(),
+            targets.ids.to_vec(),
+            &frame,
+        )
+        .map_err(|e| OpError::invalid(e.0))?;
+        Ok(Outputs::new().with("targets", out))
+    }
+}
+
+#[cfg(test)]
+mod map_targets_tests {
+    use super::*;
+
+    #[test]
+    fn targets_go_through_the_transform_either_way() {
+        let iso = Isometry3::new(Vector3::new(10.0, -5.0, 400.0), Vector3::new(0.0, 0.2, 0.0));
+        let t = Transform {
+            matrix: isometry_to_matrix(&iso),
+            from: "mri_lps".into(),
+            to: "camera_left".into(),
+        };
+        let p = [Point3::new(1.0, 2.0, 3.0)];
+        let (m, frame) = map_targets(&p, "mri_lps", &t).unwrap();
+        assert_eq!(frame, "camera_left");
+        assert!((m[0] - iso * p[0]).norm() < 1e-12);
+        let (back, frame) = map_targets(&m, "camera_left", &t).unwrap();
+        assert_eq!(frame, "mri_lps");
+        assert!((back[0] - p[0]).norm() < 1e-9);
+        let e = map_targets(&p, "world", &t).unwrap_err();
+        assert!(e.contains("`world`"), "{e}");
     }
 }

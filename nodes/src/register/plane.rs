@@ -1,0 +1,133 @@
+//! The dominant plane of a cloud (a table under the object) by RANSAC, refined
+//! by least squares on its inliers, so a scene's support can be removed before
+//! registration: a large plane lets ICP slide along it.
+//!
+//! Written here: a few lines over nalgebra; no crate of the field does just
+//! this (Open3D's `segment_plane` is the model).
+
+use nalgebra::{Matrix3, Point3, Vector3};
+use rand::{Rng, SeedableRng};
+
+/// A plane `normal . p = offset` (unit normal, mm).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Plane {
+    /// Unit normal.
+    pub normal: Vector3<f64>,
+    /// Signed distance of the plane from the origin along the normal, mm.
+    pub offset: f64,
+}
+
+impl Plane {
+    /// Signed distance of `p` from the plane, mm.
+    pub fn distance(&self, p: &Point3<f64>) -> f64 {
+        self.normal.dot(&p.coords) - self.offset
+    }
+
+    /// The least-squares plane through `points` (at least 3, not collinear).
+    pub fn fit(points: &[Point3<f64>]) -> Option<Plane> {
+        if points.len() < 3 {
+            return None;
+        }
+        let centre = points.iter().map(|p| p.coords).sum::<Vector3<f64>>() / points.len() as f64;
+        let mut cov = Matrix3::zeros();
+        for p in points {
+            let d = p.coords - centre;
+            cov += d * d.transpose();
+        }
+        let eig = cov.symmetric_eigen();
+        let (i, _) = eig.eigenvalues.argmin();
+        let normal = eig.eigenvectors.column(i).into_owned();
+        normal.iter().all(|v| v.is_finite()).then(|| Plane {
+            normal,
+            offset: normal.dot(&centre),
+        })
+    }
+}
+
+/// The plane holding most points of `points` within `threshold_mm`, from
+/// `iterations` random triples (seeded: the same cloud gives the same plane),
+/// refined on its inliers; `None` for fewer than 3 points.
+pub fn dominant_plane(
+    points: &[Point3<f64>],
+    threshold_mm: f64,
+    iterations: usize,
+    seed: u64,
+) -> Option<(Plane, usize)> {
+    let n = points.len();
+    if n < 3 {
+        return None;
+    }
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    // Count inliers on a sample of the cloud: plenty to rank candidates.
+    let stride = (n / 20_000).max(1);
+    let count = |plane: &Plane| {
+        points
+            .iter()
+            .step_by(stride)
+            .filter(|p| plane.distance(p).abs() <= threshold_mm)
+            .count()
+    };
+    let mut best: Option<(Plane, usize)> = None;
+    for _ in 0..iterations {
+        let [a, b, c] = [0; 3].map(|_| points[rng.random_range(0..n)]);
+        let normal = (b - a).cross(&(c - a));
+        let Some(normal) = normal.try_normalize(1e-9) else {
+            continue;
+        };
+        let plane = Plane {
+            normal,
+            offset: normal.dot(&a.coords),
+        };
+        let votes = count(&plane);
+        if best.is_none_or(|(_, v)| votes > v) {
+            best = Some((plane, votes));
+        }
+    }
+    let (rough, _) = best?;
+    let inliers: Vec<Point3<f64>> = points
+        .iter()
+        .copied()
+        .filter(|p| rough.distance(p).abs() <= threshold_mm)
+        .collect();
+    let plane = Plane::fit(&inliers).unwrap_or(rough);
+    let held = points
+        .iter()
+        .filter(|p| plane.distance(p).abs() <= threshold_mm)
+        .count();
+    Some((plane, held))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn finds_a_table_under_a_dome_and_its_distance() {
+        // A tilted table z = 600 + 0.1 x (mm) with noise, a dome above it.
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let mut pts = Vec::new();
+        for _ in 0..20_000 {
+            let (x, y) = (
+                rng.random_range(-200.0..200.0),
+                rng.random_range(-200.0..200.0),
+            );
+            pts.push(Point3::new(
+                x,
+                y,
+                600.0 + 0.1 * x + rng.random_range(-0.5..0.5),
+            ));
+        }
+        for _ in 0..8_000 {
+            let (t, r) = (rng.random_range(0.0..6.283), rng.random_range(0.0f64..60.0));
+            let (x, y) = (r * t.cos(), r * t.sin());
+            let h = (3600.0 - r * r).sqrt();
+            pts.push(Point3::new(x, y, 600.0 + 0.1 * x - h));
+        }
+        let (plane, held) = dominant_plane(&pts, 1.5, 200, 1).unwrap();
+        let expect = Vector3::new(-0.1, 0.0, 1.0).normalize();
+        assert!(plane.normal.dot(&expect).abs() > 0.9999, "{plane:?}");
+        assert!(held >= 20_000 && held < 20_500, "{held}");
+        assert!((plane.distance(&Point3::new(0.0, 0.0, 600.0))).abs() < 0.1);
+        assert!(dominant_plane(&pts[..2], 1.0, 10, 1).is_none());
+    }
+}

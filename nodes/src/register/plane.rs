@@ -118,7 +118,7 @@ mod tests {
             ));
         }
         for _ in 0..8_000 {
-            let (t, r) = (rng.random_range(0.0..6.283), rng.random_range(0.0f64..60.0));
+            let (t, r): (f64, f64) = (rng.random_range(0.0..6.283), rng.random_range(0.0..60.0));
             let (x, y) = (r * t.cos(), r * t.sin());
             let h = (3600.0 - r * r).sqrt();
             pts.push(Point3::new(x, y, 600.0 + 0.1 * x - h));

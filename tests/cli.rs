@@ -685,9 +685,23 @@ fn main_job_locates_the_lesions_from_images_alone() {
         "camera_markers.csv",
         "fused_clouds.ply",
         "disparity_view_00.png",
+        "report.html",
+        "figures/icp.trace.png",
+        "figures/icp.before_after.png",
+        "figures/match_0.disparity.png",
+        "figures/markers_0.detections.png",
     ] {
         assert!(out.join(file).metadata().unwrap().len() > 0, "{file}");
     }
+    let page = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(
+        page.contains("the paper: RMSE after ICP"),
+        "references beside ours"
+    );
+    assert!(
+        page.contains("canvas class=\"view3d\""),
+        "3D view of the fused result"
+    );
     // Re-run: everything cached; one ICP parameter: ICP and what follows only.
     let o = fusegraph(
         &["run", "fusion.toml", "--set", "icp.trim_ratio=0.8"],

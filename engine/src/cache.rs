@@ -4,11 +4,12 @@
 //!
 //! A disk entry is one file `DIR/v{FORMAT_VERSION}/ab/<key>.entry`:
 //! magic `FUSEGRPH`, format version (u32), payload length (u64), blake3 of the
-//! payload (32 bytes), payload (metrics, then outputs). It is written to a unique
+//! payload (32 bytes), payload (metrics, outputs, then figures). It is written to a unique
 //! temporary file in the same folder and renamed into place, so readers see either
 //! nothing or a whole entry and concurrent writers of one key both succeed. A
 //! truncated or corrupt entry fails its length or checksum test and is recomputed.
 
+use crate::figure::{Figure, FigureData};
 use crate::hash::hash_path;
 use crate::key::NodeKey;
 use crate::op::Outputs;
@@ -20,17 +21,19 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 /// Version of the entry layout and of the value encoding; bump on any change.
-pub const FORMAT_VERSION: u32 = 1;
+pub const FORMAT_VERSION: u32 = 2;
 const MAGIC: &[u8; 8] = b"FUSEGRPH";
 const HEADER_LEN: usize = 8 + 4 + 8 + 32;
 
-/// What a node produced: its outputs and its metrics.
+/// What a node produced: its outputs, metrics and figures.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct CacheEntry {
     /// Output values by port.
     pub outputs: Outputs,
     /// Metrics by name.
     pub metrics: BTreeMap<String, f64>,
+    /// Figures for the report.
+    pub figures: Arc<[Figure]>,
 }
 
 impl CacheEntry {
@@ -176,6 +179,27 @@ fn encode_entry(entry: &CacheEntry) -> Vec<u8> {
         w.str(port);
         encode_value(value, w.0);
     }
+    let mut w = Writer(&mut payload);
+    w.usize(entry.figures.len());
+    for f in entry.figures.iter() {
+        w.str(&f.name);
+        w.str(&f.caption);
+        match &f.data {
+            FigureData::Png(bytes) => {
+                w.u8(0);
+                w.u8s(bytes);
+            }
+            FigureData::Svg(text) => {
+                w.u8(1);
+                w.str(text);
+            }
+            FigureData::Points3d { xyz, rgb } => {
+                w.u8(2);
+                w.f32s(xyz);
+                w.u8s(rgb);
+            }
+        }
+    }
     let mut bytes = Vec::with_capacity(HEADER_LEN + payload.len());
     bytes.extend_from_slice(MAGIC);
     bytes.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
@@ -220,6 +244,25 @@ fn decode_entry(bytes: &[u8]) -> Result<CacheEntry, String> {
         let port = r.str().map_err(err)?;
         entry.outputs.0.insert(port, r.value().map_err(err)?);
     }
+    let mut figures = Vec::new();
+    for _ in 0..r.usize().map_err(err)? {
+        let (name, caption) = (r.str().map_err(err)?, r.str().map_err(err)?);
+        let data = match r.u8().map_err(err)? {
+            0 => FigureData::Png(r.u8s().map_err(err)?),
+            1 => FigureData::Svg(r.str().map_err(err)?),
+            2 => FigureData::Points3d {
+                xyz: r.f32s().map_err(err)?,
+                rgb: r.u8s().map_err(err)?,
+            },
+            k => return Err(format!("figure `{name}`: unknown kind {k}")),
+        };
+        figures.push(Figure {
+            name,
+            caption,
+            data,
+        });
+    }
+    entry.figures = figures.into();
     Ok(entry)
 }
 
@@ -236,6 +279,27 @@ mod tests {
             "table".into(),
             Table::new(vec!["a".into()], vec![1.0, 2.0]).unwrap().into(),
         );
+        e.figures = vec![
+            Figure {
+                name: "map".into(),
+                caption: "a picture".into(),
+                data: FigureData::Png(vec![137, 80, 78, 71]),
+            },
+            Figure {
+                name: "plot".into(),
+                caption: "a plot".into(),
+                data: FigureData::Svg("<svg/>".into()),
+            },
+            Figure {
+                name: "cloud".into(),
+                caption: "points".into(),
+                data: FigureData::Points3d {
+                    xyz: vec![1.0, 2.0, 3.0],
+                    rgb: vec![9, 8, 7],
+                },
+            },
+        ]
+        .into();
         e
     }
 

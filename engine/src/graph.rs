@@ -14,6 +14,7 @@
 
 use crate::each::{Group, expand};
 use crate::error::{ErrorKind, GraphError, GraphErrors, closest};
+use crate::report_html::Reference;
 use std::path::{Path, PathBuf};
 
 /// A connection as written: input `port` takes output `source_port` of node
@@ -54,9 +55,11 @@ pub struct GraphDoc {
     pub nodes: Vec<NodeDecl>,
     /// The `[each.NAME]` groups the copies came from.
     pub groups: Vec<Group>,
+    /// `[graph.references]`: figures from elsewhere to show beside ours.
+    pub references: Vec<Reference>,
 }
 
-const GRAPH_KEYS: &[&str] = &["name", "description"];
+const GRAPH_KEYS: &[&str] = &["name", "description", "references"];
 
 impl GraphDoc {
     /// Reads and parses a graph file.
@@ -83,10 +86,18 @@ impl GraphDoc {
             .unwrap_or_else(|| "graph".into());
         let mut nodes = Vec::new();
         let mut groups = Vec::new();
+        let mut references = Vec::new();
         for (key, value) in &table {
             match (key.as_str(), value) {
                 ("graph", toml::Value::Table(g)) => {
                     for (k, v) in g {
+                        if k == "references" {
+                            match parse_references(v) {
+                                Ok(r) => references = r,
+                                Err(m) => errors.push(err(m).at_key("references")),
+                            }
+                            continue;
+                        }
                         match (k.as_str(), v.as_str()) {
                             ("name", Some(n)) if !n.trim().is_empty() => name = n.to_string(),
                             ("description", Some(_)) => {}
@@ -171,6 +182,7 @@ impl GraphDoc {
             base_dir,
             nodes,
             groups,
+            references,
         })
     }
 
@@ -245,6 +257,31 @@ fn set_on_node(node: &mut NodeDecl, key: &str, value: &toml::Value) -> Result<()
         }
     }
     Ok(())
+}
+
+/// `[graph.references]`: `"node.metric" = { value = 3.39, note = "..." }`.
+fn parse_references(v: &toml::Value) -> Result<Vec<Reference>, String> {
+    let table = v.as_table().ok_or(
+        "[graph.references] must be a table of \"node.metric\" = { value = ..., note = \"...\" }",
+    )?;
+    table
+        .iter()
+        .map(|(metric, r)| {
+            let value = r
+                .get("value")
+                .and_then(|v| v.as_float().or_else(|| v.as_integer().map(|i| i as f64)));
+            match (value, r.get("note").and_then(|n| n.as_str())) {
+                (Some(value), Some(note)) if metric.contains('.') => Ok(Reference {
+                    metric: metric.clone(),
+                    value,
+                    note: note.to_string(),
+                }),
+                _ => Err(format!(
+                    "reference {metric:?}: write \"node.metric\" = {{ value = 1.0, note = \"where it comes from\" }}"
+                )),
+            }
+        })
+        .collect()
 }
 
 fn parse_cli_value(raw: &str) -> toml::Value {
@@ -565,5 +602,22 @@ in.b = "scale_1.value"
         let clash = format!("{text}\n[node.read_0]\nop = \"x\"\n");
         let e = parse(&clash).unwrap_err();
         assert_eq!(e.0[0].kind, ErrorKind::DuplicateId);
+    }
+
+    #[test]
+    fn references_are_read_and_checked() {
+        let g = parse(
+            "[graph]\nname = \"r\"\n[graph.references]\n\"icp.rmse_mm\" = { value = 3.39, note = \"paper\" }\n[node.a]\nop = \"x\"\n",
+        )
+        .unwrap();
+        assert_eq!(g.references.len(), 1);
+        assert_eq!(
+            (g.references[0].metric.as_str(), g.references[0].value),
+            ("icp.rmse_mm", 3.39)
+        );
+        let e = parse("[graph]\n[graph.references]\nrmse = { value = 1 }\n[node.a]\nop = \"x\"\n")
+            .unwrap_err();
+        assert_eq!(e.0[0].key.as_deref(), Some("references"));
+        assert!(e.0[0].message.contains("node.metric"), "{e}");
     }
 }

@@ -287,6 +287,7 @@ pub struct RunCtx {
     node_id: String,
     out_dir: PathBuf,
     metrics: BTreeMap<String, f64>,
+    figures: Vec<crate::figure::Figure>,
     files: Option<crate::workdir::WorkDir>,
 }
 
@@ -297,6 +298,7 @@ impl RunCtx {
             node_id: node_id.into(),
             out_dir: out_dir.to_path_buf(),
             metrics: BTreeMap::new(),
+            figures: Vec::new(),
             files: None,
         }
     }
@@ -343,6 +345,35 @@ impl RunCtx {
     /// Takes the recorded metrics.
     pub fn into_metrics(self) -> BTreeMap<String, f64> {
         self.metrics
+    }
+
+    /// Attaches a figure to the run's report (a figure of the same name
+    /// replaces the earlier one). `name` (letters, digits, `_`, `-`) names its
+    /// file; `caption` says what it shows.
+    pub fn figure(
+        &mut self,
+        name: &str,
+        caption: &str,
+        data: crate::figure::FigureData,
+    ) -> Result<(), OpError> {
+        crate::figure::check_figure_name(name).map_err(OpError::invalid)?;
+        self.figures.retain(|f| f.name != name);
+        self.figures.push(crate::figure::Figure {
+            name: name.to_string(),
+            caption: caption.to_string(),
+            data,
+        });
+        Ok(())
+    }
+
+    /// The figures attached so far.
+    pub fn figures(&self) -> &[crate::figure::Figure] {
+        &self.figures
+    }
+
+    /// Takes the recorded metrics and figures.
+    pub fn into_results(self) -> (BTreeMap<String, f64>, Vec<crate::figure::Figure>) {
+        (self.metrics, self.figures)
     }
 
     /// Where a sink writes `relative` under the run's output folder; creates the

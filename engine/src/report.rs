@@ -1,8 +1,10 @@
 //! The run report (`report.json`): per node its op, status, wall time, cache key,
 //! metrics and error; and every metric flattened as `"node.metric"`.
 
+use crate::figure::{Figure, FigureRef};
 use serde::Serialize;
 use std::collections::BTreeMap;
+use std::sync::Arc;
 
 /// What happened to a node in a run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -34,6 +36,9 @@ pub struct NodeReport {
     /// Why it failed or was skipped.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
+    /// Figures it attached (listed in the JSON by [`RunReport::to_json`]).
+    #[serde(skip)]
+    pub figures: Arc<[Figure]>,
 }
 
 /// The report of one run.
@@ -79,7 +84,13 @@ impl RunReport {
         let nodes: serde_json::Map<String, serde_json::Value> = self
             .nodes
             .iter()
-            .map(|(id, n)| (id.clone(), serde_json::to_value(n).expect("plain data")))
+            .map(|(id, n)| {
+                let mut v = serde_json::to_value(n).expect("plain data");
+                if !n.figures.is_empty() {
+                    v["figures"] = serde_json::to_value(figure_refs(id, n)).expect("plain data");
+                }
+                (id.clone(), v)
+            })
             .collect();
         serde_json::json!({
             "graph": self.graph,
@@ -90,4 +101,16 @@ impl RunReport {
             "metrics": self.metrics(),
         })
     }
+}
+
+/// Where node `id`'s figures are written under the output folder.
+pub fn figure_refs(id: &str, node: &NodeReport) -> Vec<FigureRef> {
+    node.figures
+        .iter()
+        .map(|f| FigureRef {
+            name: f.name.clone(),
+            caption: f.caption.clone(),
+            file: format!("figures/{}", f.file_name(id)),
+        })
+        .collect()
 }

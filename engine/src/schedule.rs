@@ -182,6 +182,7 @@ impl<'a> Executor<'a> {
             key: key.hex(),
             metrics,
             error,
+            figures: Default::default(),
         };
 
         let mut inputs = Inputs::default();
@@ -208,7 +209,10 @@ impl<'a> Executor<'a> {
         if let Some(entry) = self.lookup(&node.id, &key) {
             tracing::info!(node = %node.id, "cached");
             return Slot {
-                report: report(NodeStatus::Cached, entry.metrics.clone(), None),
+                report: NodeReport {
+                    figures: entry.figures.clone(),
+                    ..report(NodeStatus::Cached, entry.metrics.clone(), None)
+                },
                 entry: Some(entry),
             };
         }
@@ -257,9 +261,11 @@ impl<'a> Executor<'a> {
                 );
             }
         };
+        let (metrics, figures) = ctx.into_results();
         let entry = Arc::new(CacheEntry {
             outputs,
-            metrics: ctx.into_metrics(),
+            metrics,
+            figures: figures.into(),
         });
         self.memory.insert(key, entry.clone());
         if let Some(disk) = &self.options.cache
@@ -269,7 +275,10 @@ impl<'a> Executor<'a> {
         }
         tracing::info!(node = %node.id, ms = start.elapsed().as_secs_f64() * 1e3, "ran");
         Slot {
-            report: report(NodeStatus::Ran, entry.metrics.clone(), None),
+            report: NodeReport {
+                figures: entry.figures.clone(),
+                ..report(NodeStatus::Ran, entry.metrics.clone(), None)
+            },
             entry: Some(entry),
         }
     }

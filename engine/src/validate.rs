@@ -48,6 +48,8 @@ pub struct ValidGraph {
     pub nodes: Vec<ValidNode>,
     /// Node indices in a topological order (every node after its inputs).
     pub order: Vec<usize>,
+    /// Figures from elsewhere the report shows beside ours (`[graph.references]`).
+    pub references: Vec<crate::report_html::Reference>,
 }
 
 impl ValidGraph {
@@ -258,6 +260,7 @@ pub fn validate(doc: &GraphDoc, registry: &Registry) -> Result<ValidGraph, Graph
         file: doc.file.clone(),
         nodes,
         order,
+        references: doc.references.clone(),
     })
 }
 

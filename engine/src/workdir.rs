@@ -114,7 +114,7 @@ fn rewrite(outputs: &Outputs, from: &Path, to: &Path) -> Outputs {
 fn outputs_hold(outputs: &Outputs) -> bool {
     crate::cache::CacheEntry {
         outputs: outputs.clone(),
-        metrics: Default::default(),
+        ..Default::default()
     }
     .paths_intact()
     .is_ok()

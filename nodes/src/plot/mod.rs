@@ -1,5 +1,9 @@
 //! `plot.lines`: line plots of table columns as PNG, with plotters (text drawn
-//! with the bundled DejaVu Sans, so no system font library is needed).
+//! with the bundled DejaVu Sans, so no system font library is needed); and the
+//! pictures other ops attach to the report.
+
+mod overlay;
+pub use overlay::overlay_panels;
 
 use fusegraph_engine::registry::RegisterError;
 use fusegraph_engine::value::Table;
@@ -50,6 +54,28 @@ pub(crate) fn register_font() {
 
 /// Draws `plot` of `table` into a PNG at `path`.
 pub fn draw_lines(table: &Table, plot: &LinePlot, path: &Path) -> Result<(), String> {
+    let png = lines_png(table, plot)?;
+    std::fs::write(path, png).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// 8-bit RGB pixels (`width x height`) as PNG file bytes.
+pub fn png_bytes(rgb: &[u8], width: usize, height: usize) -> Result<Vec<u8>, String> {
+    use image::ImageEncoder;
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+    let mut out = Vec::new();
+    PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Adaptive)
+        .write_image(
+            rgb,
+            width as u32,
+            height as u32,
+            image::ExtendedColorType::Rgb8,
+        )
+        .map_err(|e| e.to_string())?;
+    Ok(out)
+}
+
+/// `plot` of `table` as PNG file bytes.
+pub fn lines_png(table: &Table, plot: &LinePlot) -> Result<Vec<u8>, String> {
     register_font();
     let column = |name: &str| {
         table
@@ -148,8 +174,7 @@ pub fn draw_lines(table: &Table, plot: &LinePlot, path: &Path) -> Result<(), Str
         }
         root.present().map_err(|e| e.to_string())?;
     }
-    image::save_buffer(path, &pixels, w, h, image::ExtendedColorType::Rgb8)
-        .map_err(|e| e.to_string())
+    png_bytes(&pixels, w as usize, h as usize)
 }
 
 struct LinesOp(OpSpec);

@@ -3,6 +3,7 @@
 use super::*;
 use crate::camera::{isometry_from_matrix, isometry_to_matrix};
 use crate::phantom::GroundTruth;
+use fusegraph_engine::figure::FigureData;
 use fusegraph_engine::value::{Markers, Mesh, PointCloud, Table, Transform};
 use fusegraph_engine::{
     Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType,
@@ -544,7 +545,7 @@ impl IcpOp {
         IcpOp(
             OpSpec::new(
                 "register.icp",
-                1,
+                2,
                 "Iterative closest point: source cloud onto target cloud",
             )
             .input("source", &[ValueType::PointCloud], "Cloud to move")
@@ -695,6 +696,7 @@ impl Op for IcpOp {
             trace,
         )
         .map_err(|e| OpError::invalid(e.0))?;
+        icp_figures(ctx, &trace, &sp, &tp, &init, &r.transform)?;
         Ok(Outputs::new()
             .with(
                 "transform",
@@ -707,11 +709,12 @@ impl Op for IcpOp {
 impl EvaluateOp {
     pub(crate) fn new() -> Self {
         EvaluateOp(
-            OpSpec::new("register.evaluate", 1, "Registration quality: RMSE over the overlap, and with the truth, TRE at the lesions")
+            OpSpec::new("register.evaluate", 2, "Registration quality: RMSE over the overlap, and with the truth, TRE at the lesions; a 3D view of the fused clouds for the report")
                 .input("transform", &[ValueType::Transform], "Source -> target")
                 .input("source", &[ValueType::PointCloud], "Source cloud")
                 .input("target", &[ValueType::PointCloud], "Target cloud")
                 .optional_input("truth", &[ValueType::Path], "ground_truth.json (frames mri_lps and camera_left of `view`)")
+                .optional_input("targets", &[ValueType::Markers], "Targets to mark in the 3D view (in the source's or the target's frame)")
                 .param(ParamSpec::float("overlap_mm", 10.0, "mm", "Source points farther than this from the target are not overlap").at_least(0.0))
                 .param(ParamSpec::float("inlier_mm", 2.0, "mm", "Pairs closer than this are inliers").at_least(0.0))
                 .param(ParamSpec::int("view", 0, "", "Phantom view whose left camera is camera_left").at_least(0.0))
@@ -760,6 +763,13 @@ impl Op for EvaluateOp {
             .copied()
             .filter(|&x| x <= inlier_mm)
             .collect();
+        fused_view(
+            ctx,
+            &s,
+            &g,
+            &iso,
+            inputs.optional::<Markers>("targets")?.as_deref(),
+        )?;
         ctx.metric("rmse_all_mm", rms(&overlap));
         ctx.metric("rmse_mm", rms(&inliers));
         ctx.metric(
@@ -804,6 +814,108 @@ impl Op for EvaluateOp {
         }
         Ok(Outputs::new().with("rmse_mm", rms(&inliers)))
     }
+}
+
+/// The fused result in the source's frame (the camera's, for MRI onto camera)
+/// as a 3D view for the report: the source cloud in its colours (grey
+/// without), the target mapped into it in blue, targets as red balls.
+fn fused_view(
+    ctx: &mut RunCtx,
+    source: &PointCloud,
+    target: &PointCloud,
+    source_to_target: &Isometry3<f64>,
+    targets: Option<&Markers>,
+) -> Result<(), OpError> {
+    const MAX_POINTS: usize = 40_000;
+    let (mut xyz, mut rgb) = (Vec::new(), Vec::new());
+    let mut push = |p: &Point3<f64>, c: [u8; 3]| {
+        xyz.extend([p.x as f32, p.y as f32, p.z as f32]);
+        rgb.extend(c);
+    };
+    let step = (source.len() / MAX_POINTS).max(1);
+    for (i, p) in cloud_points(source).iter().enumerate().step_by(step) {
+        let c = source
+            .colors
+            .as_ref()
+            .map_or([200, 200, 200], |c| [c[3 * i], c[3 * i + 1], c[3 * i + 2]]);
+        push(p, c);
+    }
+    let back = source_to_target.inverse();
+    let step = (target.len() / MAX_POINTS).max(1);
+    for p in cloud_points(target).iter().step_by(step) {
+        push(&(back * p), [70, 130, 255]);
+    }
+    if let Some(t) = targets {
+        let into_source = if t.frame == target.frame {
+            back
+        } else {
+            Isometry3::identity()
+        };
+        for c in t.positions_mm.chunks(3) {
+            let centre = into_source * Point3::new(c[0], c[1], c[2]);
+            // A ball of 2 mm radius on a 0.5 mm grid.
+            for i in -4..=4 {
+                for j in -4..=4 {
+                    for k in -4..=4 {
+                        let d = Vector3::new(i as f64, j as f64, k as f64) * 0.5;
+                        if d.norm() <= 2.0 {
+                            push(&(centre + d), [255, 40, 40]);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    ctx.figure(
+        "fused",
+        "The fused result in the source's frame: source cloud (its colours), target mapped onto it (blue), targets (red)",
+        FigureData::Points3d { xyz, rgb },
+    )
+}
+
+/// The ICP trace plot and the clouds before and after, for the report.
+fn icp_figures(
+    ctx: &mut RunCtx,
+    trace: &Table,
+    source: &[Point3<f64>],
+    target: &[Point3<f64>],
+    init: &Isometry3<f64>,
+    fin: &Isometry3<f64>,
+) -> Result<(), OpError> {
+    let plot = crate::plot::LinePlot {
+        x: "iteration".into(),
+        y: vec!["rmse_mm".into()],
+        title: "ICP: RMSE of the kept pairs".into(),
+        x_label: "iteration (all voxel stages)".into(),
+        y_label: "RMSE, mm".into(),
+        log_x: false,
+        log_y: false,
+        size_px: (700, 380),
+    };
+    if let Ok(png) = crate::plot::lines_png(trace, &plot) {
+        ctx.figure(
+            "trace",
+            "ICP: RMSE of the kept pairs by iteration",
+            FigureData::Png(png),
+        )?;
+    }
+    // At most 20,000 points of each cloud: enough to see the fit.
+    let thin = |pts: &[Point3<f64>], iso: &Isometry3<f64>| -> Vec<Point3<f64>> {
+        let step = (pts.len() / 20_000).max(1);
+        pts.iter().step_by(step).map(|p| iso * p).collect()
+    };
+    let (before, after) = (thin(source, init), thin(source, fin));
+    let target = thin(target, &Isometry3::identity());
+    if let Some((rgb, w, h)) = crate::plot::overlay_panels(&target, &[&before, &after], 420)
+        && let Ok(png) = crate::plot::png_bytes(&rgb, w, h)
+    {
+        ctx.figure(
+            "before_after",
+            "Side view: source (orange) over target (grey), from the initial transform (left) and after ICP (right)",
+            FigureData::Png(png),
+        )?;
+    }
+    Ok(())
 }
 
 impl MultiviewOp {

@@ -170,6 +170,17 @@ fn disparity_output(
     ctx.metric("min_disparity_px", range.min_px as f64);
     ctx.metric("max_disparity_px", range.max_px() as f64);
     let value = Disparity::new(width, height, data).map_err(|e| OpError::invalid(e.0))?;
+    // The map for the report, coloured over its 1st to 99th percentiles.
+    if let Some(range) = crate::io::finite_percentiles(&value.data, 1.0, 99.0)
+        && let Ok((rgb, w, h)) = crate::io::disparity_png(&value, range)
+        && let Ok(png) = crate::plot::png_bytes(&rgb, w, h)
+    {
+        ctx.figure(
+            "disparity",
+            "Disparity on the left rectified image, px (black: invalid)",
+            fusegraph_engine::figure::FigureData::Png(png),
+        )?;
+    }
     Ok(Outputs::new().with("disparity", value))
 }
 
@@ -186,7 +197,7 @@ impl SgmOp {
         SgmOp(
             matcher_spec(
                 "stereo.sgm",
-                5,
+                6,
                 "Semi-global matching (census or Birchfield-Tomasi costs, 5 paths in one pass, or 4 or 8 in two) -> Disparity",
             )
             .param(ParamSpec::choice(
@@ -299,7 +310,7 @@ impl BlockMatchOp {
         BlockMatchOp(
             matcher_spec(
                 "stereo.block_match",
-                3,
+                4,
                 "Local block matching (SAD, ZNCC or census over a window) -> Disparity",
             )
             .param(ParamSpec::choice(

@@ -122,6 +122,9 @@ pub struct Blob {
     pub aspect: f64,
     /// [`ellipse_fit`] of the blob.
     pub fit: f64,
+    /// The centroid in the image the blob was found in, px (the same as
+    /// `x_px`, `y_px` unless they were mapped into the rectified frame).
+    pub image_px: (f64, f64),
 }
 
 /// Checks an interleaved 8-bit RGB buffer's length.
@@ -209,6 +212,7 @@ pub fn find_blobs(
                 area_px: soft_area,
                 aspect,
                 fit,
+                image_px: (x, y),
             })
         })
         .collect();
@@ -649,6 +653,7 @@ mod tests {
             area_px: area,
             aspect: 1.0,
             fit: 1.0,
+            image_px: (x, y),
         };
         // Two markers on one row: left A (100) and B (300); right A' (80) and
         // B' (280). B could pair with A' (disparity 220), but then A would be

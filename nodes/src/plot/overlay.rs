@@ -1,0 +1,105 @@
+//! Point clouds drawn over each other for the report: an orthographic side
+//! view (the target's widest and thinnest principal axes), one panel per
+//! state, target grey and source orange, so a registration's before and after
+//! can be seen at a glance.
+
+use nalgebra::{Matrix3, Point3, Vector3};
+
+/// Panels (`panel_px` square each, side by side) of `target` with each
+/// source cloud of `sources` over it, in the target's frame. 8-bit RGB and its
+/// size; `None` when the target is empty.
+pub fn overlay_panels(
+    target: &[Point3<f64>],
+    sources: &[&[Point3<f64>]],
+    panel_px: usize,
+) -> Option<(Vec<u8>, usize, usize)> {
+    if target.is_empty() || sources.is_empty() {
+        return None;
+    }
+    let n = target.len() as f64;
+    let centre = target.iter().map(|p| p.coords).sum::<Vector3<f64>>() / n;
+    let mut cov = Matrix3::zeros();
+    for p in target {
+        let d = p.coords - centre;
+        cov += d * d.transpose();
+    }
+    let eig = cov.symmetric_eigen();
+    let (wide, thin) = (eig.eigenvalues.argmax().0, eig.eigenvalues.argmin().0);
+    let (u, mut v) = (
+        eig.eigenvectors.column(wide).into_owned(),
+        eig.eigenvectors.column(thin).into_owned(),
+    );
+    // Up is where the cloud reaches farthest from its centre (a dome's cap).
+    let (lo, hi) = target.iter().fold((0.0f64, 0.0f64), |(lo, hi), p| {
+        let b = (p.coords - centre).dot(&v);
+        (lo.min(b), hi.max(b))
+    });
+    if -lo > hi {
+        v = -v;
+    }
+    let project = |p: &Point3<f64>| {
+        let d = p.coords - centre;
+        (d.dot(&u), d.dot(&v))
+    };
+    let extent = target
+        .iter()
+        .map(|p| {
+            let (a, b) = project(p);
+            a.abs().max(b.abs())
+        })
+        .fold(0.0, f64::max)
+        .max(1e-9)
+        * 1.1;
+    let (w, h) = (panel_px * sources.len(), panel_px);
+    let mut rgb = vec![255u8; w * h * 3];
+    let mut plot = |panel: usize, p: &Point3<f64>, colour: [u8; 3]| {
+        let (a, b) = project(p);
+        let x = ((a / extent + 1.0) * 0.5 * (panel_px - 1) as f64).round();
+        let y = ((1.0 - (b / extent + 1.0) * 0.5) * (panel_px - 1) as f64).round();
+        if (0.0..panel_px as f64).contains(&x) && (0.0..panel_px as f64).contains(&y) {
+            let i = (y as usize * w + panel * panel_px + x as usize) * 3;
+            rgb[i..i + 3].copy_from_slice(&colour);
+        }
+    };
+    for (panel, source) in sources.iter().enumerate() {
+        for p in target {
+            plot(panel, p, [150, 150, 150]);
+        }
+        for p in source.iter() {
+            plot(panel, p, [235, 120, 20]);
+        }
+    }
+    // A dark line between panels.
+    for panel in 1..sources.len() {
+        for y in 0..h {
+            let i = (y * w + panel * panel_px) * 3;
+            rgb[i..i + 3].copy_from_slice(&[40, 40, 40]);
+        }
+    }
+    Some((rgb, w, h))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn panels_show_both_clouds() {
+        let target: Vec<Point3<f64>> = (0..400)
+            .map(|i| Point3::new(i as f64 * 0.25, (i % 7) as f64, 0.0))
+            .collect();
+        let moved: Vec<Point3<f64>> = target
+            .iter()
+            .map(|p| p + Vector3::new(0.0, 3.0, 0.0))
+            .collect();
+        let (rgb, w, h) = overlay_panels(&target, &[&moved, &target], 100).unwrap();
+        assert_eq!((w, h), (200, 100));
+        let count = |c: [u8; 3]| rgb.chunks(3).filter(|p| *p == c).count();
+        assert!(count([235, 120, 20]) > 50, "source drawn");
+        assert!(
+            count([150, 150, 150]) > 20,
+            "target drawn where not covered"
+        );
+        assert!(overlay_panels(&[], &[&moved], 10).is_none());
+    }
+}

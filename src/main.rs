@@ -75,7 +75,7 @@ enum Command {
         #[command(flatten)]
         edit: Edit,
     },
-    /// Write the ground-truth phantom: DIR/mri/, DIR/calib/, DIR/views/, DIR/ground_truth.json.
+    /// Write the ground-truth phantom: DIR/mri/, DIR/calib/, DIR/views/, DIR/ground_truth.json, DIR/targets.mrk.json.
     Phantom {
         /// Output folder.
         #[arg(long)]
@@ -193,6 +193,26 @@ fn execute(cli: Cli, registry: &Registry) -> anyhow::Result<ExitCode> {
             let started = std::time::Instant::now();
             let g =
                 fusegraph_nodes::phantom::generate(&config, &out).map_err(anyhow::Error::msg)?;
+            // The lesions as a radiologist would mark them on the scan: the
+            // targets file `graphs/rig.toml` reads.
+            let lesions = fusegraph_engine::value::Markers::new(
+                g.truth
+                    .lesions
+                    .iter()
+                    .flat_map(|l| l.center_mri_mm)
+                    .collect::<Vec<f64>>(),
+                g.truth.lesions.iter().map(|l| l.id).collect::<Vec<u32>>(),
+                "mri_lps",
+            )
+            .map_err(|e| anyhow::anyhow!(e.0))?;
+            let targets = out.join("targets.mrk.json");
+            std::fs::write(
+                &targets,
+                serde_json::to_string_pretty(&fusegraph_nodes::io::slicer_markups(
+                    &lesions, "lesion",
+                ))?,
+            )
+            .with_context(|| targets.display().to_string())?;
             println!(
                 "phantom ({size}, seed {seed}) in {:.2} s: {} MRI slices ({:.0} ms), {} calibration pairs ({:.0} ms), {} views ({:.0} ms); truth: {}",
                 started.elapsed().as_secs_f64(),
@@ -204,6 +224,7 @@ fn execute(cli: Cli, registry: &Registry) -> anyhow::Result<ExitCode> {
                 g.stage_ms[2],
                 g.truth_file.display()
             );
+            println!("targets (the lesions, MRI LPS): {}", targets.display());
             Ok(ExitCode::SUCCESS)
         }
         Command::Bench { what } => {

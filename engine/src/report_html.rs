@@ -34,6 +34,9 @@ fn num(v: f64) -> String {
     if !v.is_finite() {
         return "-".into();
     }
+    if v == 0.0 {
+        return "0".into();
+    }
     if v != 0.0 && (v.abs() >= 1e6 || v.abs() < 1e-3) {
         return format!("{v:.3e}");
     }
@@ -298,6 +301,8 @@ mod tests {
         assert_eq!(num(1234.5), "1234.5");
         assert_eq!(num(3.0), "3");
         assert_eq!(num(f64::NAN), "-");
+        assert_eq!(num(0.0), "0");
+        assert_eq!(num(-2.5e-7), "-2.500e-7");
         assert_eq!(base64(b"Man"), "TWFu");
         assert_eq!(base64(b"Ma"), "TWE=");
         assert_eq!(base64(b"M"), "TQ==");

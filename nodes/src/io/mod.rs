@@ -4,6 +4,7 @@
 mod disparity;
 mod images;
 mod path;
+mod read_markers;
 mod write_json;
 mod write_markers;
 mod write_mesh;
@@ -15,6 +16,7 @@ pub use disparity::{
     decode_pfm, decode_pgm, disparity_png, encode_pfm, finite_percentiles, read_disparity, viridis,
 };
 pub use images::{grey_of, load_image, side_by_side};
+pub use read_markers::{parse_markups, parse_points_csv};
 pub use write_json::value_to_json;
 pub use write_markers::{markers_csv, slicer_markups};
 pub use write_mesh::{write_ply, write_stl};
@@ -30,6 +32,7 @@ use std::sync::Arc;
 pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.register(Arc::new(path::PathOp::new()))?;
     registry.register(Arc::new(images::ReadImageOp::new()))?;
+    registry.register(Arc::new(read_markers::ReadMarkersOp::new()))?;
     registry.register(Arc::new(images::WriteStereoPairOp::new()))?;
     registry.register(Arc::new(write_rig::WriteRigOp::new()))?;
     registry.register(Arc::new(write_registration::WriteTransformOp::new()))?;

@@ -12,7 +12,9 @@ mod procrustes;
 pub use cloud::{Nearest, bumpy_ellipsoid, estimate_normals, sample_mesh, voxel_downsample};
 pub use icp::{IcpMethod, IcpParams, IcpResult, IcpStep, Kernel, icp};
 pub use match_markers::{MarkerMatch, match_markers};
-pub use multiview::{MergedMarker, Multiview, View, merge_markers, register_views};
+pub use multiview::{
+    MergedMarker, Multiview, View, merge_markers, poses_from_markers, register_views,
+};
 pub use plane::{Plane, dominant_plane};
 pub use procrustes::{Similarity, umeyama};
 

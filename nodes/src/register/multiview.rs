@@ -194,3 +194,81 @@ mod merge_tests {
         assert_eq!(merge_markers(&sets, 40.0).len(), 1);
     }
 }
+
+/// Rough view -> first-view poses from the markers alone, for a rig with no
+/// pose readings: each view's markers registered onto the previous view's
+/// (correspondences by [`super::match_markers`], rigid), chained from view 0
+/// (identity). Each neighbour pair must share 3 markers; the error names the
+/// pair that does not.
+pub fn poses_from_markers(
+    markers: &[Vec<Point3<f64>>],
+    tolerance_mm: f64,
+) -> Result<Vec<Isometry3<f64>>, String> {
+    let mut poses = vec![Isometry3::identity()];
+    for i in 1..markers.len() {
+        let m = super::match_markers(&markers[i], &markers[i - 1], tolerance_mm, false)
+            .filter(|m| m.pairs.len() >= 3)
+            .ok_or_else(|| {
+                format!(
+                    "views {} and {i} share fewer than 3 markers that fit within {tolerance_mm} mm: \
+                     connect the rig's poses (pose{} ...) instead",
+                    i - 1,
+                    i - 1
+                )
+            })?;
+        let t = &m.transform;
+        let step = Isometry3::from_parts(
+            t.translation.into(),
+            nalgebra::UnitQuaternion::from_rotation_matrix(&t.rotation),
+        );
+        let previous = poses[i - 1];
+        poses.push(previous * step);
+    }
+    Ok(poses)
+}
+
+#[cfg(test)]
+mod chain_tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    #[test]
+    fn poses_chain_through_shared_markers() {
+        // Eight markers in the world; three views, each seeing six of them.
+        let world: Vec<Point3<f64>> = (0..8)
+            .map(|k| {
+                let a = k as f64 * 0.8;
+                Point3::new(60.0 * a.cos(), 60.0 * a.sin(), 20.0 * (k % 3) as f64)
+            })
+            .collect();
+        let poses: Vec<Isometry3<f64>> = (0..3)
+            .map(|i| {
+                Isometry3::from_parts(
+                    Translation3::new(10.0 * i as f64, -5.0, 500.0),
+                    UnitQuaternion::from_euler_angles(0.1 * i as f64, 0.3 * i as f64, 0.0),
+                )
+            })
+            .collect();
+        let seen: Vec<Vec<Point3<f64>>> = (0..3)
+            .map(|i| {
+                world[i..i + 6]
+                    .iter()
+                    .map(|p| poses[i].inverse() * p)
+                    .collect()
+            })
+            .collect();
+        let found = poses_from_markers(&seen, 1.0).unwrap();
+        for i in 0..3 {
+            let truth = poses[0].inverse() * poses[i];
+            let err = (found[i].translation.vector - truth.translation.vector).norm()
+                + found[i].rotation.angle_to(&truth.rotation);
+            assert!(err < 1e-6, "view {i}: {err}");
+        }
+        let lonely = vec![seen[0].clone(), seen[2][..2].to_vec()];
+        assert!(
+            poses_from_markers(&lonely, 1.0)
+                .unwrap_err()
+                .contains("views 0 and 1")
+        );
+    }
+}

@@ -927,14 +927,15 @@ impl MultiviewOp {
         );
         for i in 0..MAX_VIEWS {
             let doc = format!("View {i}'s cloud, in its camera frame");
-            let pose_doc = format!("View {i}'s rough camera -> world pose");
+            let pose_doc = format!(
+                "View {i}'s rough camera -> world pose (e.g. the robot's reading); without poses, they come from the markers"
+            );
             spec = if i < 2 {
                 spec.input(&format!("cloud{i}"), &[ValueType::PointCloud], &doc)
-                    .input(&format!("pose{i}"), &[ValueType::Transform], &pose_doc)
             } else {
                 spec.optional_input(&format!("cloud{i}"), &[ValueType::PointCloud], &doc)
-                    .optional_input(&format!("pose{i}"), &[ValueType::Transform], &pose_doc)
-            };
+            }
+            .optional_input(&format!("pose{i}"), &[ValueType::Transform], &pose_doc);
             spec = spec.optional_input(
                 &format!("markers{i}"),
                 &[ValueType::Markers],
@@ -1021,7 +1022,7 @@ impl Op for MultiviewOp {
             let pose = inputs.optional::<Transform>(&format!("pose{i}"))?;
             let seen = inputs.optional::<Markers>(&format!("markers{i}"))?;
             match (cloud, pose) {
-                (Some(c), Some(t)) => {
+                (Some(c), pose) => {
                     if let Some(m) = &seen
                         && m.frame != c.frame
                     {
@@ -1039,7 +1040,9 @@ impl Op for MultiviewOp {
                     if frame.is_empty() {
                         frame = c.frame.clone();
                     }
-                    if t.from != c.frame || t.to != "world" {
+                    if let Some(t) = &pose
+                        && (t.from != c.frame || t.to != "world")
+                    {
                         return Err(OpError::invalid(format!(
                             "pose{i} maps `{}` -> `{}`; it must map the cloud's frame `{}` -> `world`",
                             t.from, t.to, c.frame
@@ -1051,16 +1054,30 @@ impl Op for MultiviewOp {
                         None => estimate_normals(&points, k, Some(Point3::origin())),
                     };
                     views.push(View { points, normals });
-                    rough.push(transform_isometry(&t));
+                    rough.push(pose.map(|t| transform_isometry(&t)));
                 }
                 (None, None) if seen.is_none() => {}
                 _ => {
                     return Err(OpError::invalid(format!(
-                        "view {i}: connect both cloud{i} and pose{i} (and optionally markers{i}), or none"
+                        "view {i}: pose{i} or markers{i} without cloud{i}"
                     )));
                 }
             }
         }
+        // Rough poses: all given, or none (then from the markers).
+        let rough: Vec<Isometry3<f64>> = if rough.iter().all(Option::is_some) {
+            rough.into_iter().flatten().collect()
+        } else if rough.iter().all(Option::is_none) {
+            let sets: Option<Vec<Vec<Point3<f64>>>> = markers.iter().cloned().collect();
+            let sets = sets.ok_or_else(|| {
+                OpError::invalid("without poses, connect every view's markers (markers0 ...)")
+            })?;
+            poses_from_markers(&sets, params.float("merge_mm")?).map_err(OpError::invalid)?
+        } else {
+            return Err(OpError::invalid(
+                "connect a pose for every view or for none (then they come from the markers)",
+            ));
+        };
         let p = IcpParams {
             method: IcpMethod::PointToPlane,
             max_distance_mm: params.float("max_distance_mm")?,

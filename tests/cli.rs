@@ -26,6 +26,11 @@ fn demo_copy(dir: &Path) -> String {
     "demo.toml".into()
 }
 
+/// The cache's versioned folder name (`v2` ...).
+fn cache_version() -> String {
+    format!("v{}", fusegraph_engine::cache::FORMAT_VERSION)
+}
+
 fn report(dir: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap()
 }
@@ -154,7 +159,8 @@ fn corrupt_cache_files_are_recomputed() {
     let g = demo_copy(t.path());
     assert!(fusegraph(&["run", &g], t.path()).status.success());
     let mut corrupted = 0;
-    for shard in std::fs::read_dir(t.path().join(".fusegraph/cache/v1")).unwrap() {
+    for shard in std::fs::read_dir(t.path().join(".fusegraph/cache").join(cache_version())).unwrap()
+    {
         for entry in std::fs::read_dir(shard.unwrap().path()).unwrap() {
             let p = entry.unwrap().path();
             let bytes = std::fs::read(&p).unwrap();
@@ -373,7 +379,12 @@ in.truth = "phantom.truth"
     assert!(o.status.success(), "{}", stderr(&o));
     let r = report(&t.path().join("out/p"));
     let key = r["nodes"]["phantom"]["key"].as_str().unwrap().to_string();
-    let files = t.path().join(".fusegraph/cache/v1/files").join(&key);
+    let files = t
+        .path()
+        .join(".fusegraph/cache")
+        .join(cache_version())
+        .join("files")
+        .join(&key);
     assert!(
         files.join("ground_truth.json").exists(),
         "{}",

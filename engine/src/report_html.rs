@@ -298,7 +298,7 @@ mod tests {
     #[test]
     fn numbers_and_base64() {
         assert_eq!(num(0.123456), "0.1235");
-        assert_eq!(num(1234.5), "1234.5");
+        assert_eq!(num(1234.56), "1235");
         assert_eq!(num(3.0), "3");
         assert_eq!(num(f64::NAN), "-");
         assert_eq!(num(0.0), "0");

@@ -417,7 +417,16 @@ fn generated_files_live_in_the_cache_under_the_node_key() {
     let key = &first.report.node("gen").unwrap().key;
     assert_eq!(
         dir,
-        std::path::absolute(cache.join("v1/files").join(key).join("series")).unwrap()
+        std::path::absolute(
+            cache
+                .join(format!(
+                    "v{}/files",
+                    fusegraph_engine::cache::FORMAT_VERSION
+                ))
+                .join(key)
+                .join("series")
+        )
+        .unwrap()
     );
     assert_eq!(
         std::fs::read_to_string(dir.join("slice3.txt")).unwrap(),
@@ -443,7 +452,11 @@ fn generated_files_live_in_the_cache_under_the_node_key() {
         std::fs::read_to_string(dir.join("slice0.txt")).unwrap(),
         "slice 0"
     );
-    std::fs::remove_dir_all(cache.join("v1/files")).unwrap();
+    std::fs::remove_dir_all(cache.join(format!(
+        "v{}/files",
+        fusegraph_engine::cache::FORMAT_VERSION
+    )))
+    .unwrap();
     assert_eq!(
         statuses(&run_file(&reg, &g, &[], Some(&cache), &out).unwrap())["gen"],
         Ran

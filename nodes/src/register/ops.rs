@@ -922,7 +922,7 @@ impl MultiviewOp {
     pub(crate) fn new() -> Self {
         let mut spec = OpSpec::new(
             "register.multiview",
-            2,
+            3,
             "Several camera clouds (and their markers) with rough poses -> one cloud and one marker set: pairwise ICP around the ring, then global adjustment",
         );
         for i in 0..MAX_VIEWS {
@@ -967,6 +967,15 @@ impl MultiviewOp {
                 .at_least(0.0),
             )
             .param(ParamSpec::int("rounds", 2, "", "Rounds of global adjustment").range(1.0, 20.0))
+            .param(
+                ParamSpec::float(
+                    "tolerance",
+                    1e-5,
+                    "",
+                    "ICP: relative change of RMSE and fitness that stops it (tighter only slows it: on 100k-point clouds the fitness moves by single pairs)",
+                )
+                .at_least(0.0),
+            )
             .param(ParamSpec::choice(
                 "frame",
                 &["world", "first_view"],
@@ -1084,7 +1093,7 @@ impl Op for MultiviewOp {
             trim_ratio: params.float("trim_ratio")?,
             kernel: Kernel::Huber(params.float("kernel_mm")?),
             max_iterations: 40,
-            tolerance: 1e-7,
+            tolerance: params.float("tolerance")?,
             voxel_sizes_mm: params.float_list("voxel_sizes_mm")?,
         };
         let mut m = register_views(&views, &rough, &p, params.count("rounds")?)

@@ -225,7 +225,7 @@ impl MonteCarloOp {
         MonteCarloOp(
             OpSpec::new(
                 "design.baseline_monte_carlo",
-                1,
+                2,
                 "Triangulation variance against baseline: noisy projections of random points, DLT, repeated",
             )
             .optional_input("lens_mm", &[ValueType::Scalar], "Focal length from another node (overrides focal_mm)")
@@ -323,6 +323,30 @@ impl Op for MonteCarloOp {
         if let Some(slope) = study.loglog_slope_z() {
             ctx.metric("loglog_slope_z", slope);
         }
-        Ok(Outputs::new().with("table", table(&columns, rows)?))
+        let out = table(&columns, rows)?;
+        // The study's plot for the report (log-log: variance ~ 1 / b^2).
+        let y: Vec<String> = columns
+            .iter()
+            .filter(|c| c.starts_with("var_z") || c.starts_with("paper"))
+            .map(|c| c.to_string())
+            .collect();
+        let plot = crate::plot::LinePlot {
+            x: "baseline_mm".into(),
+            y,
+            title: "Depth variance against baseline (Monte Carlo)".into(),
+            x_label: "baseline, mm".into(),
+            y_label: "variance of z, mm^2".into(),
+            log_x: true,
+            log_y: true,
+            size_px: (700, 420),
+        };
+        if let Ok(png) = crate::plot::lines_png(&out, &plot) {
+            ctx.figure(
+                "variance",
+                "Variance of triangulated depth against baseline, log-log (the paper's values where fitted)",
+                fusegraph_engine::figure::FigureData::Png(png),
+            )?;
+        }
+        Ok(Outputs::new().with("table", out))
     }
 }

@@ -84,7 +84,7 @@ impl OtsuOp {
         OtsuOp(
             OpSpec::new(
                 "mri.otsu",
-                1,
+                2,
                 "Otsu's threshold over the whole volume -> foreground mask",
             )
             .input("volume", &[ValueType::Volume], "Volume")
@@ -116,6 +116,20 @@ impl Op for OtsuOp {
         let fraction = mask.iter().filter(|&&m| m == 1).count() as f64 / mask.len() as f64;
         ctx.metric("threshold", t as f64);
         ctx.metric("foreground_fraction", fraction);
+        // The middle slice for the report, foreground tinted.
+        let dims = v.grid.dims;
+        let rgb = crate::plot::mask_over_slice(&v.data, &mask, dims, dims[2] / 2);
+        if let Ok(png) = crate::plot::png_bytes(&rgb, dims[0], dims[1]) {
+            ctx.figure(
+                "mask",
+                &format!(
+                    "Otsu foreground (red) over the middle slice {} of {}",
+                    dims[2] / 2,
+                    dims[2]
+                ),
+                fusegraph_engine::figure::FigureData::Png(png),
+            )?;
+        }
         Ok(Outputs::new()
             .with(
                 "mask",

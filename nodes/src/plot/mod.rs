@@ -3,7 +3,7 @@
 //! pictures other ops attach to the report.
 
 mod overlay;
-pub use overlay::overlay_panels;
+pub use overlay::{mask_over_slice, overlay_panels};
 
 use fusegraph_engine::registry::RegisterError;
 use fusegraph_engine::value::Table;

@@ -85,12 +85,13 @@ mod tests {
 
     #[test]
     fn panels_show_both_clouds() {
+        // A strip, thin along z: the side view shows x and z.
         let target: Vec<Point3<f64>> = (0..400)
-            .map(|i| Point3::new(i as f64 * 0.25, (i % 7) as f64, 0.0))
+            .map(|i| Point3::new(i as f64 * 0.25, (i % 7) as f64 * 3.0, (i % 3) as f64 * 0.3))
             .collect();
         let moved: Vec<Point3<f64>> = target
             .iter()
-            .map(|p| p + Vector3::new(0.0, 3.0, 0.0))
+            .map(|p| p + Vector3::new(0.0, 0.0, 6.0))
             .collect();
         let (rgb, w, h) = overlay_panels(&target, &[&moved, &target], 100).unwrap();
         assert_eq!((w, h), (200, 100));
@@ -101,5 +102,50 @@ mod tests {
             "target drawn where not covered"
         );
         assert!(overlay_panels(&[], &[&moved], 10).is_none());
+    }
+}
+
+/// Slice `k` of a volume (`dims`, i fastest) in grey, scaled between its 1st
+/// and 99th percentiles, with `mask` (same layout) tinted red over it: the
+/// Otsu foreground on an MRI slice. 8-bit RGB, `dims[0] x dims[1]`.
+pub fn mask_over_slice(volume: &[f32], mask: &[u8], dims: [usize; 3], k: usize) -> Vec<u8> {
+    let (w, h) = (dims[0], dims[1]);
+    let slice = &volume[k * w * h..(k + 1) * w * h];
+    let mut sorted: Vec<f32> = slice.iter().copied().filter(|v| v.is_finite()).collect();
+    sorted.sort_by(f32::total_cmp);
+    let at = |q: f64| {
+        sorted
+            .get(((sorted.len().max(1) - 1) as f64 * q) as usize)
+            .copied()
+    };
+    let (lo, hi) = (at(0.01).unwrap_or(0.0), at(0.99).unwrap_or(1.0));
+    let span = (hi - lo).max(1e-6);
+    let mut rgb = Vec::with_capacity(w * h * 3);
+    for (i, &v) in slice.iter().enumerate() {
+        let g = ((v - lo) / span).clamp(0.0, 1.0) * 255.0;
+        if mask[k * w * h + i] != 0 {
+            rgb.extend([(0.5 * g + 127.0) as u8, (0.5 * g) as u8, (0.5 * g) as u8]);
+        } else {
+            rgb.extend([g as u8; 3]);
+        }
+    }
+    rgb
+}
+
+#[cfg(test)]
+mod slice_tests {
+    use super::*;
+
+    #[test]
+    fn masked_voxels_are_tinted_red() {
+        let dims = [4, 3, 2];
+        let volume: Vec<f32> = (0..24).map(|i| i as f32).collect();
+        let mut mask = vec![0u8; 24];
+        mask[12 + 5] = 1; // slice 1, voxel (1, 1)
+        let rgb = mask_over_slice(&volume, &mask, dims, 1);
+        assert_eq!(rgb.len(), 4 * 3 * 3);
+        let px = |i: usize| [rgb[3 * i], rgb[3 * i + 1], rgb[3 * i + 2]];
+        assert!(px(5)[0] > px(5)[1] + 100, "red tint {:?}", px(5));
+        assert_eq!(px(4)[0], px(4)[1]);
     }
 }

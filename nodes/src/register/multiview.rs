@@ -234,11 +234,14 @@ mod chain_tests {
 
     #[test]
     fn poses_chain_through_shared_markers() {
-        // Eight markers in the world; three views, each seeing six of them.
+        // Eight markers in the world, irregularly placed (a symmetric layout
+        // would match itself turned, as real markers are not); three views,
+        // each seeing six of them.
         let world: Vec<Point3<f64>> = (0..8)
             .map(|k| {
-                let a = k as f64 * 0.8;
-                Point3::new(60.0 * a.cos(), 60.0 * a.sin(), 20.0 * (k % 3) as f64)
+                let a = k as f64 * 0.7 + 0.05 * (k * k) as f64;
+                let r = 60.0 + 7.0 * ((k * 5) % 3) as f64;
+                Point3::new(r * a.cos(), r * a.sin(), 17.0 * ((k * k) % 5) as f64)
             })
             .collect();
         let poses: Vec<Isometry3<f64>> = (0..3)

@@ -2,6 +2,7 @@
 //! point cloud helpers and ICP.
 
 mod cloud;
+mod colour_filter;
 mod icp;
 mod match_markers;
 mod multiview;
@@ -10,6 +11,7 @@ mod plane;
 mod procrustes;
 
 pub use cloud::{Nearest, bumpy_ellipsoid, estimate_normals, sample_mesh, voxel_downsample};
+pub use colour_filter::{HueRange, away_from_colour};
 pub use icp::{IcpMethod, IcpParams, IcpResult, IcpStep, Kernel, icp};
 pub use match_markers::{MarkerMatch, match_markers};
 pub use multiview::{
@@ -29,6 +31,7 @@ pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.register(Arc::new(ops::FromMeshOp::new()))?;
     registry.register(Arc::new(ops::DownsampleOp::new()))?;
     registry.register(Arc::new(ops::RemovePlaneOp::new()))?;
+    registry.register(Arc::new(ops::RemoveColourOp::new()))?;
     registry.register(Arc::new(ops::NormalsOp::new()))?;
     registry.register(Arc::new(ops::TransformCloudOp::new()))?;
     registry.register(Arc::new(ops::IcpOp::new()))?;

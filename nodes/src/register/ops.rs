@@ -436,6 +436,76 @@ impl Op for RemovePlaneOp {
     }
 }
 
+pub(crate) struct RemoveColourOp(OpSpec);
+
+impl RemoveColourOp {
+    pub(crate) fn new() -> Self {
+        let b = crate::stereo::BlobParams::default();
+        RemoveColourOp(
+            OpSpec::new(
+                "cloud.remove_colour",
+                1,
+                "Removes the points of a colour (markers' faces) and every point within a radius of them (their walls)",
+            )
+            .input("cloud", &[ValueType::PointCloud], "A cloud with colours")
+            .param(
+                ParamSpec::float_list(
+                    "hue_deg",
+                    &[b.hue_deg.0, b.hue_deg.1],
+                    "deg",
+                    "Hue range [min, max]; min > max wraps through 0 (default: the markers' green, as stereo.hsv_markers)",
+                )
+                .range(0.0, 360.0),
+            )
+            .param(
+                ParamSpec::float("min_saturation", b.min_saturation, "", "Smallest saturation (0..1)")
+                    .range(0.0, 1.0),
+            )
+            .param(ParamSpec::float("min_value", b.min_value, "", "Smallest value (0..1)").range(0.0, 1.0))
+            .param(
+                ParamSpec::float(
+                    "radius_mm",
+                    6.0,
+                    "mm",
+                    "Points this close to a coloured one go too (a marker's 5 mm wall)",
+                )
+                .at_least(0.0),
+            )
+            .output("cloud", ValueType::PointCloud, "The cloud without them"),
+        )
+    }
+}
+
+impl Op for RemoveColourOp {
+    fn spec(&self) -> &OpSpec {
+        &self.0
+    }
+    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
+        let c = inputs.get::<PointCloud>("cloud")?;
+        let Some(colors) = &c.colors else {
+            return Err(OpError::invalid("the cloud has no colours to select by"));
+        };
+        let hue = params.float_list("hue_deg")?;
+        let [h0, h1] = hue[..] else {
+            return Err(OpError::invalid(format!(
+                "parameter `hue_deg`: expected [min, max], got {} numbers",
+                hue.len()
+            )));
+        };
+        let range = HueRange {
+            hue_deg: (h0, h1),
+            min_saturation: params.float("min_saturation")?,
+            min_value: params.float("min_value")?,
+        };
+        let rgb: Vec<[u8; 3]> = colors.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let keep = away_from_colour(&cloud_points(&c), &rgb, &range, params.float("radius_mm")?);
+        let kept = keep.iter().filter(|k| **k).count();
+        ctx.metric("removed", (keep.len() - kept) as f64);
+        ctx.metric("points", kept as f64);
+        Ok(Outputs::new().with("cloud", c.select(&keep).map_err(|e| OpError::invalid(e.0))?))
+    }
+}
+
 impl NormalsOp {
     pub(crate) fn new() -> Self {
         NormalsOp(

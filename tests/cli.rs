@@ -700,10 +700,14 @@ fn main_job_locates_the_lesions_from_images_alone() {
     assert_eq!(f("merge.markers"), 12.0, "{m}");
     assert_eq!(f("eval_correspondences.wrong"), 0.0, "{m}");
     assert!(f("eval_correspondences.right") >= 10.0, "{m}");
+    // RMSE over the whole 10 mm overlap, and of the inliers.
+    assert!(f("evaluate.rmse_all_mm") <= 1.0, "{m}");
     assert!(f("evaluate.rmse_mm") <= 1.0, "{m}");
     assert!(f("evaluate.tre_mm") <= 1.5, "{m}");
+    assert!(f("evaluate.tre_max_mm") <= 1.5, "{m}");
     assert!(f("targets.target_error_max_mm") <= 1.5, "{m}");
-    assert!(f("eval_camera_surface.mean_mm") < 0.5, "{m}");
+    assert!(f("eval_camera_surface.mean_mm") < 0.3, "{m}");
+    assert!(f("eval_camera_surface.p95_mm") < 1.0, "{m}");
     let out = t.path().join("out/fusion");
     for file in [
         "targets_camera.csv",

@@ -11,7 +11,7 @@
 
 use super::subpixel::{refine_corner, window_for_square};
 use nalgebra::{Point2, Vector2};
-use std::collections::HashMap;
+use std::collections::BTreeMap;
 
 /// Smooths with a Gaussian of `sigma` px (separable, clamped borders).
 pub(crate) fn gaussian(img: &[f32], w: usize, h: usize, sigma: f64) -> Vec<f32> {
@@ -132,12 +132,14 @@ fn looks_like_x(grey: &[f32], w: usize, h: usize, x: f64, y: f64) -> bool {
     changes == 4
 }
 
-/// A grid grown from a seed: grid coordinates -> candidate index.
+/// A grid grown from a seed: grid coordinates -> candidate index. Ordered
+/// (a BTreeMap), so growth visits cells in the same order on every run: with
+/// a HashMap the same image gave different grids from run to run.
 fn grow(
     cands: &[Candidate],
     seed: usize,
     limit: (usize, usize),
-) -> Option<HashMap<(i32, i32), usize>> {
+) -> Option<BTreeMap<(i32, i32), usize>> {
     let s = cands[seed].p;
     let mut near: Vec<(f64, usize)> = cands
         .iter()
@@ -154,7 +156,7 @@ fn grow(
         let cos = u.dot(&v) / (u.norm() * v.norm());
         cos.abs() < 0.6 && *d < 2.0 * d1
     })?;
-    let mut grid: HashMap<(i32, i32), usize> = HashMap::new();
+    let mut grid: BTreeMap<(i32, i32), usize> = BTreeMap::new();
     let mut used = vec![false; cands.len()];
     for (key, idx) in [((0, 0), seed), ((1, 0), n1), ((0, 1), n2)] {
         grid.insert(key, idx);
@@ -283,7 +285,7 @@ pub fn find_chessboard(
 /// Origins (and whether transposed) of every fully populated `cols x rows`
 /// window of the grid, in either orientation.
 fn full_windows(
-    grid: &HashMap<(i32, i32), usize>,
+    grid: &BTreeMap<(i32, i32), usize>,
     cols: usize,
     rows: usize,
 ) -> Vec<(i32, i32, bool)> {
@@ -577,5 +579,46 @@ mod tests {
             find_chessboard(&img, 640, 480, 7, 6).is_err(),
             "a 7 x 6 window of a 9 x 6 board is ambiguous"
         );
+    }
+}
+
+#[cfg(test)]
+mod real_photo_tests {
+    use super::*;
+    use rayon::prelude::*;
+
+    /// A photo from tests/data/chessboard as grey 0..1.
+    fn photo(name: &str) -> (Vec<f32>, usize, usize) {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../tests/data/chessboard")
+            .join(name);
+        let img = image::open(&path).unwrap().to_luma8();
+        let (w, h) = img.dimensions();
+        (
+            img.pixels().map(|p| p.0[0] as f32 / 255.0).collect(),
+            w as usize,
+            h as usize,
+        )
+    }
+
+    /// The outcome as bits: corners' coordinates, or the refusal.
+    fn outcome(grey: &[f32], w: usize, h: usize) -> Result<Vec<(u64, u64)>, String> {
+        find_chessboard(grey, w, h, 9, 6)
+            .map(|c| c.iter().map(|p| (p.x.to_bits(), p.y.to_bits())).collect())
+    }
+
+    #[test]
+    fn the_same_photo_gives_the_same_result_every_time_on_any_thread() {
+        for name in ["calibration03.jpg", "calibration13.jpg"] {
+            let (grey, w, h) = photo(name);
+            let first = outcome(&grey, w, h);
+            let again: Vec<_> = (0..8)
+                .into_par_iter()
+                .map(|_| outcome(&grey, w, h))
+                .collect();
+            for other in again {
+                assert_eq!(other, first, "{name}");
+            }
+        }
     }
 }

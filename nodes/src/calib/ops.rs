@@ -87,7 +87,7 @@ impl FindChessboardOp {
         FindChessboardOp(
             OpSpec::new(
                 "calib.find_chessboard",
-                2,
+                3,
                 "Chessboard inner corners, sub-pixel, in every image matching a glob",
             )
             .optional_input(

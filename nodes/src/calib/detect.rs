@@ -480,6 +480,17 @@ fn inconsistent_corners(corners: &[Point2<f64>], cols: usize) -> Vec<usize> {
         .collect()
 }
 
+/// The index of the corner `n` steps from corner k along `dir` (a row or a
+/// column of a `cols x rows` board), if it is on the board.
+fn step_from(cols: usize, rows: usize, k: usize, dir: (isize, isize), n: isize) -> Option<usize> {
+    let (i, j) = (
+        (k % cols) as isize + n * dir.0,
+        (k / cols) as isize + n * dir.1,
+    );
+    (i >= 0 && j >= 0 && (i as usize) < cols && (j as usize) < rows)
+        .then(|| j as usize * cols + i as usize)
+}
+
 /// The cross ratio of four consecutive corners on corner k's row or column
 /// (k among them), from their positions along the line.
 fn cross_ratio_around(
@@ -489,12 +500,7 @@ fn cross_ratio_around(
     k: usize,
     dir: (isize, isize),
 ) -> Option<f64> {
-    let (i, j) = ((k % cols) as isize, (k / cols) as isize);
-    let idx = |n: isize| {
-        let (ii, jj) = (i + n * dir.0, j + n * dir.1);
-        (ii >= 0 && jj >= 0 && (ii as usize) < cols && (jj as usize) < rows)
-            .then(|| jj as usize * cols + ii as usize)
-    };
+    let idx = |n: isize| step_from(cols, rows, k, dir, n);
     // The first window of four that holds k and fits on the board.
     let start = (-3..=0).find(|s| (0..4).all(|n| idx(s + n).is_some()))?;
     let pts: Vec<Point2<f64>> = (0..4).map(|n| corners[idx(start + n).unwrap()]).collect();
@@ -514,12 +520,7 @@ fn curve_prediction(
     k: usize,
     dir: (isize, isize),
 ) -> Option<(Point2<f64>, Vector2<f64>)> {
-    let (i, j) = ((k % cols) as isize, (k / cols) as isize);
-    let at = |n: isize| {
-        let (ii, jj) = (i + n * dir.0, j + n * dir.1);
-        (ii >= 0 && jj >= 0 && (ii as usize) < cols && (jj as usize) < rows)
-            .then(|| corners[jj as usize * cols + ii as usize].coords)
-    };
+    let at = |n: isize| step_from(cols, rows, k, dir, n).map(|c| corners[c].coords);
     let point = |v: Vector2<f64>| Point2::from(v);
     match (at(-2), at(-1), at(1), at(2)) {
         (Some(m2), Some(m1), Some(p1), Some(p2)) => Some((
@@ -661,5 +662,46 @@ mod tests {
             find_chessboard(&img, 640, 480, 7, 6).is_err(),
             "a 7 x 6 window of a 9 x 6 board is ambiguous"
         );
+    }
+}
+
+#[cfg(test)]
+mod real_photo_tests {
+    use super::*;
+    use rayon::prelude::*;
+
+    /// A photo from tests/data/chessboard as grey 0..1.
+    fn photo(name: &str) -> (Vec<f32>, usize, usize) {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../tests/data/chessboard")
+            .join(name);
+        let img = image::open(&path).unwrap().to_luma8();
+        let (w, h) = img.dimensions();
+        (
+            img.pixels().map(|p| p.0[0] as f32 / 255.0).collect(),
+            w as usize,
+            h as usize,
+        )
+    }
+
+    /// The outcome as bits: corners' coordinates, or the refusal.
+    fn outcome(grey: &[f32], w: usize, h: usize) -> Result<Vec<(u64, u64)>, String> {
+        find_chessboard(grey, w, h, 9, 6)
+            .map(|c| c.iter().map(|p| (p.x.to_bits(), p.y.to_bits())).collect())
+    }
+
+    #[test]
+    fn the_same_photo_gives_the_same_result_every_time_on_any_thread() {
+        for name in ["calibration03.jpg", "calibration13.jpg"] {
+            let (grey, w, h) = photo(name);
+            let first = outcome(&grey, w, h);
+            let again: Vec<_> = (0..8)
+                .into_par_iter()
+                .map(|_| outcome(&grey, w, h))
+                .collect();
+            for other in again {
+                assert_eq!(other, first, "{name}");
+            }
+        }
     }
 }

@@ -11,7 +11,7 @@ mod plane;
 mod procrustes;
 
 pub use cloud::{Nearest, bumpy_ellipsoid, estimate_normals, sample_mesh, voxel_downsample};
-pub use colour_filter::{HueRange, away_from_colour};
+pub use colour_filter::away_from_colour;
 pub use icp::{IcpMethod, IcpParams, IcpResult, IcpStep, Kernel, icp};
 pub use match_markers::{MarkerMatch, match_markers};
 pub use multiview::{

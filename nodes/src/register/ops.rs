@@ -485,20 +485,18 @@ impl Op for RemoveColourOp {
         let Some(colors) = &c.colors else {
             return Err(OpError::invalid("the cloud has no colours to select by"));
         };
-        let hue = params.float_list("hue_deg")?;
-        let [h0, h1] = hue[..] else {
-            return Err(OpError::invalid(format!(
-                "parameter `hue_deg`: expected [min, max], got {} numbers",
-                hue.len()
-            )));
-        };
-        let range = HueRange {
-            hue_deg: (h0, h1),
+        let colour = crate::stereo::BlobParams {
+            hue_deg: crate::stereo::hue_range(params)?,
             min_saturation: params.float("min_saturation")?,
             min_value: params.float("min_value")?,
+            ..Default::default()
         };
-        let rgb: Vec<[u8; 3]> = colors.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-        let keep = away_from_colour(&cloud_points(&c), &rgb, &range, params.float("radius_mm")?);
+        let keep = away_from_colour(
+            &cloud_points(&c),
+            colors,
+            &colour,
+            params.float("radius_mm")?,
+        );
         let kept = keep.iter().filter(|k| **k).count();
         ctx.metric("removed", (keep.len() - kept) as f64);
         ctx.metric("points", kept as f64);

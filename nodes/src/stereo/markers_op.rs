@@ -202,6 +202,18 @@ fn detections_png(
     crate::plot::png_bytes(&out, hw, hh)
 }
 
+/// The `hue_deg` parameter as (min, max).
+pub(crate) fn hue_range(params: &Params) -> Result<(f64, f64), OpError> {
+    let hue = params.float_list("hue_deg")?;
+    let [h0, h1] = hue[..] else {
+        return Err(OpError::invalid(format!(
+            "parameter `hue_deg`: expected [min, max], got {} numbers",
+            hue.len()
+        )));
+    };
+    Ok((h0, h1))
+}
+
 impl Op for HsvMarkersOp {
     fn spec(&self) -> &OpSpec {
         &self.0
@@ -217,15 +229,8 @@ impl Op for HsvMarkersOp {
                 left.width, left.height, rect_value.width, rect_value.height
             )));
         }
-        let hue = params.float_list("hue_deg")?;
-        let [h0, h1] = hue[..] else {
-            return Err(OpError::invalid(format!(
-                "parameter `hue_deg`: expected [min, max], got {} numbers",
-                hue.len()
-            )));
-        };
         let blob = BlobParams {
-            hue_deg: (h0, h1),
+            hue_deg: hue_range(params)?,
             min_saturation: params.float("min_saturation")?,
             min_value: params.float("min_value")?,
             morph_radius_px: params.count("morph_radius_px")?,

@@ -37,10 +37,11 @@ pub use dense_ops::triangulate_disparity;
 pub use feature_ops::{features_from_table, features_to_table};
 pub use filter::filter_speckles;
 pub use hsv_markers::{
-    Blob, BlobParams, PairParams, StereoMarker, StereoMarkers, find_blobs, hsv, hue_score,
-    pair_blobs, stereo_markers,
+    Blob, BlobParams, PairParams, StereoMarker, StereoMarkers, colour_mask, find_blobs, hsv,
+    hue_score, pair_blobs, stereo_markers,
 };
 pub use markers_op::BLOB_COLUMNS;
+pub(crate) use markers_op::hue_range;
 pub use matching::{FeatureMatch, MatchParams, match_features};
 pub use pair::{DisparityRange, GreyImage, check_pair};
 pub use range::{RangeParams, disparity_range, percentile};

@@ -405,13 +405,7 @@ pub(crate) fn row_body(job: &mut RowJob<'_>) {
     job.h_prev[1..=n].fill(0);
     for i in 0..w {
         let x = if job.reverse { w - 1 - i } else { i };
-        let at_x = x * job.cost_stride;
-        let cost = if job.cost_stride >= lanes {
-            &job.cost_row[at_x..at_x + lanes]
-        } else {
-            job.cost_lanes[..n].copy_from_slice(&job.cost_row[at_x..at_x + n]);
-            &job.cost_lanes[..]
-        };
+        let cost = pixel_costs(job.cost_row, job.cost_stride, n, lanes, job.cost_lanes, x);
         let sum = &mut job.sum_row[x * lanes..(x + 1) * lanes];
         let p2 = job.p2[i];
         let at = |path: usize, px: usize| path * plane + px * stride;
@@ -470,6 +464,27 @@ pub(crate) fn row_body(job: &mut RowJob<'_>) {
     }
 }
 
+/// Pixel x's costs from a row of `stride` per pixel, as `lanes` values:
+/// borrowed when the row is padded to whole vectors, else copied into
+/// `scratch` (whose padding lanes the kernels ignore).
+#[inline(always)]
+fn pixel_costs<'a>(
+    row: &'a [u8],
+    stride: usize,
+    n: usize,
+    lanes: usize,
+    scratch: &'a mut [u8],
+    x: usize,
+) -> &'a [u8] {
+    let at = x * stride;
+    if stride >= lanes {
+        &row[at..at + lanes]
+    } else {
+        scratch[..n].copy_from_slice(&row[at..at + n]);
+        scratch
+    }
+}
+
 /// The horizontal path against the pass's direction along the row, added to
 /// the row's sums.
 #[inline(always)]
@@ -480,13 +495,7 @@ fn back_horizontal(job: &mut RowJob<'_>) {
     job.h_prev[1..=n].fill(0);
     for i in 0..w {
         let x = if job.reverse { i } else { w - 1 - i };
-        let at_x = x * job.cost_stride;
-        let cost = if job.cost_stride >= lanes {
-            &job.cost_row[at_x..at_x + lanes]
-        } else {
-            job.cost_lanes[..n].copy_from_slice(&job.cost_row[at_x..at_x + n]);
-            &job.cost_lanes[..]
-        };
+        let cost = pixel_costs(job.cost_row, job.cost_stride, n, lanes, job.cost_lanes, x);
         sgm_pixel_body(
             cost,
             job.pad,

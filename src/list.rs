@@ -79,6 +79,17 @@ pub fn summary(report: &RunReport, out_dir: &Path) -> String {
             let _ = writeln!(s, "{:>8} {e}", "");
         }
     }
+    let counts = report.note_counts();
+    if !counts.is_empty() {
+        let total: usize = counts.iter().map(|(_, n)| n).sum();
+        let by_node: Vec<String> = counts.iter().map(|(id, n)| format!("{id} {n}")).collect();
+        let _ = writeln!(
+            s,
+            "{total} warning{} ({}): see `notes` in report.json",
+            if total == 1 { "" } else { "s" },
+            by_node.join(", ")
+        );
+    }
     let _ = write!(
         s,
         "graph `{}`: {} in {:.1} ms; report: {}",

@@ -77,6 +77,7 @@ fn sample_report() -> RunReport {
         key: "00".into(),
         metrics: [("rmse_mm".to_string(), 0.61)].into(),
         error: None,
+        notes: Default::default(),
         figures: figures.into(),
     };
     RunReport {

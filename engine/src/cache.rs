@@ -4,7 +4,7 @@
 //!
 //! A disk entry is one file `DIR/v{FORMAT_VERSION}/ab/<key>.entry`:
 //! magic `FUSEGRPH`, format version (u32), payload length (u64), blake3 of the
-//! payload (32 bytes), payload (metrics, outputs, then figures). It is written to a unique
+//! payload (32 bytes), payload (metrics, outputs, figures, then notes). It is written to a unique
 //! temporary file in the same folder and renamed into place, so readers see either
 //! nothing or a whole entry and concurrent writers of one key both succeed. A
 //! truncated or corrupt entry fails its length or checksum test and is recomputed.
@@ -21,7 +21,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 /// Version of the entry layout and of the value encoding; bump on any change.
-pub const FORMAT_VERSION: u32 = 2;
+pub const FORMAT_VERSION: u32 = 3;
 const MAGIC: &[u8; 8] = b"FUSEGRPH";
 const HEADER_LEN: usize = 8 + 4 + 8 + 32;
 
@@ -34,6 +34,8 @@ pub struct CacheEntry {
     pub metrics: BTreeMap<String, f64>,
     /// Figures for the report.
     pub figures: Arc<[Figure]>,
+    /// The op's warnings (see [`crate::RunCtx::note`]).
+    pub notes: Arc<[String]>,
 }
 
 impl CacheEntry {
@@ -200,6 +202,10 @@ fn encode_entry(entry: &CacheEntry) -> Vec<u8> {
             }
         }
     }
+    w.usize(entry.notes.len());
+    for n in entry.notes.iter() {
+        w.str(n);
+    }
     let mut bytes = Vec::with_capacity(HEADER_LEN + payload.len());
     bytes.extend_from_slice(MAGIC);
     bytes.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
@@ -263,6 +269,10 @@ fn decode_entry(bytes: &[u8]) -> Result<CacheEntry, String> {
         });
     }
     entry.figures = figures.into();
+    let notes: Vec<String> = (0..r.usize().map_err(err)?)
+        .map(|_| r.str().map_err(err))
+        .collect::<Result<_, _>>()?;
+    entry.notes = notes.into();
     Ok(entry)
 }
 
@@ -300,6 +310,7 @@ mod tests {
             },
         ]
         .into();
+        e.notes = vec!["left_07.png: refused: blurred".to_string()].into();
         e
     }
 

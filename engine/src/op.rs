@@ -288,7 +288,19 @@ pub struct RunCtx {
     out_dir: PathBuf,
     metrics: BTreeMap<String, f64>,
     figures: Vec<crate::figure::Figure>,
+    notes: Vec<String>,
     files: Option<crate::workdir::WorkDir>,
+}
+
+/// What a run of an op recorded besides its outputs.
+#[derive(Debug, Default)]
+pub struct RunResults {
+    /// Metrics by name.
+    pub metrics: BTreeMap<String, f64>,
+    /// Figures for the report.
+    pub figures: Vec<crate::figure::Figure>,
+    /// Warnings for the user (inputs refused or skipped, and why).
+    pub notes: Vec<String>,
 }
 
 impl RunCtx {
@@ -299,6 +311,7 @@ impl RunCtx {
             out_dir: out_dir.to_path_buf(),
             metrics: BTreeMap::new(),
             figures: Vec::new(),
+            notes: Vec::new(),
             files: None,
         }
     }
@@ -371,9 +384,29 @@ impl RunCtx {
         &self.figures
     }
 
-    /// Takes the recorded metrics and figures.
-    pub fn into_results(self) -> (BTreeMap<String, f64>, Vec<crate::figure::Figure>) {
-        (self.metrics, self.figures)
+    /// Records a warning for the user: an input that was refused, skipped or
+    /// repaired, and why (`"left_07.png: refused: no complete 9 x 6 grid"`).
+    /// Notes land in the node's `notes` in report.json, are kept in the cache
+    /// with its outputs (a cached re-run shows them too) and are counted in
+    /// the CLI's summary.
+    pub fn note(&mut self, text: impl Into<String>) {
+        let text = text.into();
+        tracing::info!(node = %self.node_id, "note: {text}");
+        self.notes.push(text);
+    }
+
+    /// The notes recorded so far.
+    pub fn notes(&self) -> &[String] {
+        &self.notes
+    }
+
+    /// Takes the recorded metrics, figures and notes.
+    pub fn into_results(self) -> RunResults {
+        RunResults {
+            metrics: self.metrics,
+            figures: self.figures,
+            notes: self.notes,
+        }
     }
 
     /// Where a sink writes `relative` under the run's output folder; creates the

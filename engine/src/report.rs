@@ -36,6 +36,9 @@ pub struct NodeReport {
     /// Why it failed or was skipped.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
+    /// Warnings the op recorded: inputs refused, skipped or repaired, and why.
+    #[serde(skip_serializing_if = "<[String]>::is_empty")]
+    pub notes: Arc<[String]>,
     /// Figures it attached (listed in the JSON by [`RunReport::to_json`]).
     #[serde(skip)]
     pub figures: Arc<[Figure]>,
@@ -65,6 +68,15 @@ impl RunReport {
     /// The report of node `id`.
     pub fn node(&self, id: &str) -> Option<&NodeReport> {
         self.nodes.iter().find(|(n, _)| n == id).map(|(_, r)| r)
+    }
+
+    /// How many notes (warnings) the nodes recorded, and by which nodes.
+    pub fn note_counts(&self) -> Vec<(&str, usize)> {
+        self.nodes
+            .iter()
+            .filter(|(_, n)| !n.notes.is_empty())
+            .map(|(id, n)| (id.as_str(), n.notes.len()))
+            .collect()
     }
 
     /// Every metric as `"node.metric"`.
@@ -97,6 +109,7 @@ impl RunReport {
             "file": self.file,
             "succeeded": self.succeeded(),
             "total_ms": self.total_ms,
+            "warnings": self.note_counts().iter().map(|(_, n)| n).sum::<usize>(),
             "nodes": nodes,
             "metrics": self.metrics(),
         })

@@ -124,6 +124,20 @@ pub fn report_html(report: &RunReport, references: &[Reference]) -> String {
         }
         h.push_str("</ul>\n");
     }
+    let noted: Vec<_> = report
+        .nodes
+        .iter()
+        .filter(|(_, n)| !n.notes.is_empty())
+        .collect();
+    if !noted.is_empty() {
+        h.push_str("<h2>Warnings</h2>\n<ul class=\"notes\">\n");
+        for (id, n) in noted {
+            for note in n.notes.iter() {
+                let _ = writeln!(h, "<li><b>{}</b>: {}</li>", esc(id), esc(note));
+            }
+        }
+        h.push_str("</ul>\n");
+    }
     let metrics = report.metrics();
     if !references.is_empty() {
         h.push_str(
@@ -317,6 +331,7 @@ mod tests {
             key: "ab".into(),
             metrics: [("rmse_mm".to_string(), 0.61)].into(),
             error: error.map(String::from),
+            notes: vec!["a.png: refused <blurred>".to_string()].into(),
             figures: vec![
                 Figure {
                     name: "map".into(),
@@ -359,6 +374,8 @@ mod tests {
             "a &lt;map&gt;",
             "canvas class=\"view3d\"",
             "icp.rmse_mm",
+            "<h2>Warnings</h2>",
+            "a.png: refused &lt;blurred&gt;",
         ] {
             assert!(page.contains(needle), "missing {needle:?}");
         }

@@ -182,6 +182,7 @@ impl<'a> Executor<'a> {
             key: key.hex(),
             metrics,
             error,
+            notes: Default::default(),
             figures: Default::default(),
         };
 
@@ -211,6 +212,7 @@ impl<'a> Executor<'a> {
             return Slot {
                 report: NodeReport {
                     figures: entry.figures.clone(),
+                    notes: entry.notes.clone(),
                     ..report(NodeStatus::Cached, entry.metrics.clone(), None)
                 },
                 entry: Some(entry),
@@ -255,17 +257,22 @@ impl<'a> Executor<'a> {
         let outputs = match result {
             Ok(outputs) => outputs,
             Err(msg) => {
+                let results = ctx.into_results();
                 return self.failure(
                     &node.id,
-                    report(NodeStatus::Failed, ctx.into_metrics(), Some(msg)),
+                    NodeReport {
+                        notes: results.notes.into(),
+                        ..report(NodeStatus::Failed, results.metrics, Some(msg))
+                    },
                 );
             }
         };
-        let (metrics, figures) = ctx.into_results();
+        let results = ctx.into_results();
         let entry = Arc::new(CacheEntry {
             outputs,
-            metrics,
-            figures: figures.into(),
+            metrics: results.metrics,
+            figures: results.figures.into(),
+            notes: results.notes.into(),
         });
         self.memory.insert(key, entry.clone());
         if let Some(disk) = &self.options.cache
@@ -277,6 +284,7 @@ impl<'a> Executor<'a> {
         Slot {
             report: NodeReport {
                 figures: entry.figures.clone(),
+                notes: entry.notes.clone(),
                 ..report(NodeStatus::Ran, entry.metrics.clone(), None)
             },
             entry: Some(entry),

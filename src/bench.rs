@@ -85,6 +85,25 @@ pub enum BenchCommand {
         #[arg(long)]
         paths: Option<i64>,
     },
+    /// Chessboard detection (calib.find_chessboard) on every image of a
+    /// folder, on one thread, decoding included: each image's outcome and the
+    /// time per image (best of --repeat); --out writes corners.csv.
+    Chessboard {
+        /// Folder of photos.
+        dir: std::path::PathBuf,
+        /// File names to use.
+        #[arg(long, default_value = "*.jpg")]
+        glob: String,
+        /// Inner corners per row and per column, e.g. 9x6.
+        #[arg(long, default_value = "9x6")]
+        pattern: String,
+        /// Repetitions; the best time is reported.
+        #[arg(long, default_value_t = 3)]
+        repeat: usize,
+        /// Folder for corners.csv.
+        #[arg(long)]
+        out: Option<std::path::PathBuf>,
+    },
 }
 
 /// A graph of `n` trivial nodes: 10 constants, then binary nodes each reading two
@@ -156,6 +175,22 @@ pub fn run_bench(what: BenchCommand, registry: &Registry) -> anyhow::Result<()> 
                 _ => crate::bench_sgm::default_cases(&folder)?,
             };
             crate::bench_sgm::run(&cases, repeat, paths, &folder)
+        }
+        BenchCommand::Chessboard {
+            dir,
+            glob,
+            pattern,
+            repeat,
+            out,
+        } => {
+            let size = pattern
+                .to_lowercase()
+                .split_once('x')
+                .and_then(|(c, r)| Some((c.trim().parse().ok()?, r.trim().parse().ok()?)))
+                .ok_or_else(|| {
+                    anyhow::anyhow!("--pattern {pattern:?}: give COLSxROWS, e.g. 9x6")
+                })?;
+            crate::bench_chessboard::run(&dir, &glob, size, repeat, out.as_deref())
         }
     }
 }

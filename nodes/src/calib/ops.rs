@@ -2,7 +2,7 @@
 
 use super::*;
 use crate::camera::{CameraModel, isometry_from_matrix, isometry_to_matrix};
-use crate::io::{grey_of, load_image};
+use crate::io::{grey_of, load_grey};
 use fusegraph_engine::value::{Camera, Image, PathValue, Pixels, Rectification, StereoRig, Table};
 use fusegraph_engine::{
     Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType,
@@ -87,7 +87,7 @@ impl FindChessboardOp {
         FindChessboardOp(
             OpSpec::new(
                 "calib.find_chessboard",
-                3,
+                4,
                 "Chessboard inner corners, sub-pixel, in every image matching a glob",
             )
             .optional_input(
@@ -192,8 +192,8 @@ impl Op for FindChessboardOp {
         let results: Vec<Detection> = files
             .par_iter()
             .map(|f| {
-                let img = load_image(f).map_err(|e| e.to_string())?;
-                find_chessboard(&grey_of(&img), img.width, img.height, cols, rows)
+                let img = load_grey(f).map_err(|e| e.to_string())?;
+                find_chessboard(&img.levels, img.width, img.height, cols, rows)
                     .map(|c| (c, img.width, img.height))
             })
             .collect();

@@ -17,6 +17,58 @@ pub fn load_image(path: &std::path::Path) -> Result<Image, OpError> {
         .map_err(|e| OpError::invalid(e.0))
 }
 
+/// A grey image: levels 0..1, row-major.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GreyImage {
+    /// Width, px.
+    pub width: usize,
+    /// Height, px.
+    pub height: usize,
+    /// `width * height` levels, 0..1.
+    pub levels: Vec<f32>,
+}
+
+/// Reads an image file as grey levels (0..1) for detectors. A JPEG is decoded
+/// straight to its luma plane (Y of its YCbCr, what the camera encoded as
+/// brightness), skipping the colour planes, their upsampling and the RGB
+/// conversion; other formats go through [`load_image`] and [`grey_of`].
+/// Same bytes, same levels, in every binary and on any thread count.
+pub fn load_grey(path: &std::path::Path) -> Result<GreyImage, OpError> {
+    let bytes = std::fs::read(path).map_err(|e| OpError::io(path, e))?;
+    if bytes.starts_with(&[0xFF, 0xD8]) {
+        use zune_core::bytestream::ZCursor;
+        use zune_core::colorspace::ColorSpace;
+        use zune_core::options::DecoderOptions;
+        let options = DecoderOptions::default().jpeg_set_out_colorspace(ColorSpace::Luma);
+        let mut decoder = zune_jpeg::JpegDecoder::new_with_options(ZCursor::new(&bytes), options);
+        let luma = decoder
+            .decode()
+            .map_err(|e| OpError::invalid(format!("{}: {e:?}", path.display())))?;
+        let (width, height) = decoder
+            .dimensions()
+            .ok_or_else(|| OpError::invalid(format!("{}: no image size", path.display())))?;
+        if luma.len() != width * height {
+            return Err(OpError::invalid(format!(
+                "{}: decoded {} samples for {width} x {height} px",
+                path.display(),
+                luma.len()
+            )));
+        }
+        let levels = luma.iter().map(|&v| v as f32 / 255.0).collect();
+        return Ok(GreyImage {
+            width,
+            height,
+            levels,
+        });
+    }
+    let img = load_image(path)?;
+    Ok(GreyImage {
+        width: img.width,
+        height: img.height,
+        levels: grey_of(&img),
+    })
+}
+
 /// Grey levels (0..1) of an RGB or grey image, row-major.
 pub fn grey_of(img: &Image) -> Vec<f32> {
     let n = img.width * img.height;

@@ -15,7 +15,7 @@ mod write_table;
 pub use disparity::{
     decode_pfm, decode_pgm, disparity_png, encode_pfm, finite_percentiles, read_disparity, viridis,
 };
-pub use images::{grey_of, load_image, side_by_side};
+pub use images::{GreyImage, grey_of, load_grey, load_image, side_by_side};
 pub use read_markers::{parse_markups, parse_points_csv};
 pub use write_json::value_to_json;
 pub use write_markers::{markers_csv, slicer_markups};

@@ -81,6 +81,16 @@ impl ParamValue {
         }
     }
 
+    /// The number of items, if this is a list.
+    fn list_len(&self) -> Option<usize> {
+        match self {
+            ParamValue::FloatList(v) => Some(v.len()),
+            ParamValue::IntList(v) => Some(v.len()),
+            ParamValue::StringList(v) => Some(v.len()),
+            _ => None,
+        }
+    }
+
     /// The numbers a range check applies to.
     fn numbers(&self) -> Vec<f64> {
         match self {
@@ -125,8 +135,43 @@ pub struct ParamSpec {
     pub max: Option<f64>,
     /// Allowed strings, when the parameter is a choice.
     pub choices: Vec<String>,
+    /// Allowed lengths, when the parameter is a list (`None`: any length).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub length: Option<ListLength>,
     /// One-line description.
     pub doc: String,
+}
+
+/// The lengths a list parameter may have.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ListLength {
+    /// One of these lengths (`[2]`: a pair; `[0, 2]`: empty or a pair).
+    OneOf(Vec<usize>),
+    /// A multiple of this (flattened triples: 3).
+    MultipleOf(usize),
+}
+
+impl ListLength {
+    /// Whether a list of `n` items fits.
+    pub fn allows(&self, n: usize) -> bool {
+        match self {
+            ListLength::OneOf(lengths) => lengths.contains(&n),
+            ListLength::MultipleOf(k) => n % k == 0,
+        }
+    }
+}
+
+impl std::fmt::Display for ListLength {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ListLength::OneOf(lengths) => {
+                let words: Vec<String> = lengths.iter().map(|n| n.to_string()).collect();
+                write!(f, "{}", words.join(" or "))
+            }
+            ListLength::MultipleOf(k) => write!(f, "a multiple of {k}"),
+        }
+    }
 }
 
 impl ParamSpec {
@@ -145,6 +190,7 @@ impl ParamSpec {
             min: None,
             max: None,
             choices: Vec::new(),
+            length: None,
             doc: doc.into(),
         }
     }
@@ -264,6 +310,23 @@ impl ParamSpec {
         self
     }
 
+    /// Requires a list of exactly `n` items (`pattern = [9, 6]`: 2).
+    pub fn length(self, n: usize) -> Self {
+        self.lengths(&[n])
+    }
+
+    /// Requires a list of one of these lengths (`&[0, 2]`: empty or a pair).
+    pub fn lengths(mut self, allowed: &[usize]) -> Self {
+        self.length = Some(ListLength::OneOf(allowed.to_vec()));
+        self
+    }
+
+    /// Requires a list whose length is a multiple of `k` (flattened tuples).
+    pub fn length_multiple_of(mut self, k: usize) -> Self {
+        self.length = Some(ListLength::MultipleOf(k));
+        self
+    }
+
     /// Sets the smallest allowed number (inclusive).
     pub fn at_least(mut self, min: f64) -> Self {
         self.min = Some(min);
@@ -275,6 +338,14 @@ impl ParamSpec {
     /// expected and what was found.
     pub fn parse(&self, value: &toml::Value, base_dir: &Path) -> Result<ParamValue, String> {
         let parsed = self.convert(value, base_dir)?;
+        if let (Some(length), Some(n)) = (&self.length, parsed.list_len())
+            && !length.allows(n)
+        {
+            return Err(format!(
+                "a list of {n} item{}, expected {length}",
+                if n == 1 { "" } else { "s" }
+            ));
+        }
         for x in parsed.numbers() {
             if !x.is_finite() {
                 return Err(format!("{x} is not a finite number"));
@@ -490,6 +561,36 @@ mod tests {
             Ok(ParamValue::Path("/graphs/data/x".into()))
         );
         assert_eq!(parse(&p, "\"/abs\""), Ok(ParamValue::Path("/abs".into())));
+    }
+
+    #[test]
+    fn list_lengths_are_part_of_the_declaration() {
+        let pair = ParamSpec::int_list("pattern", &[9, 6], "", "").length(2);
+        assert_eq!(parse(&pair, "[9, 7]"), Ok(ParamValue::IntList(vec![9, 7])));
+        assert_eq!(
+            parse(&pair, "[9, 6, 10]"),
+            Err("a list of 3 items, expected 2".into())
+        );
+        assert_eq!(
+            parse(&pair, "[9]"),
+            Err("a list of 1 item, expected 2".into())
+        );
+        let bounds = ParamSpec::float_list("bounds_px", &[], "px", "").lengths(&[0, 2]);
+        assert!(parse(&bounds, "[]").is_ok() && parse(&bounds, "[1, 2]").is_ok());
+        assert_eq!(
+            parse(&bounds, "[1]"),
+            Err("a list of 1 item, expected 0 or 2".into())
+        );
+        let triples = ParamSpec::float_list("xyz_mm", &[], "mm", "").length_multiple_of(3);
+        assert!(parse(&triples, "[1, 2, 3, 4, 5, 6]").is_ok());
+        assert_eq!(
+            parse(&triples, "[1, 2, 3, 4]"),
+            Err("a list of 4 items, expected a multiple of 3".into())
+        );
+        // A declaration whose default breaks its own length is refused.
+        let spec = crate::OpSpec::new("t.op", 1, "")
+            .param(ParamSpec::int_list("pattern", &[9, 6, 1], "", "").length(2));
+        assert!(spec.check().is_err());
     }
 
     #[test]

@@ -10,6 +10,7 @@ mod ops;
 mod rectify;
 mod stereo;
 mod subpixel;
+mod views;
 mod zhang;
 
 pub use camera_calibration::{
@@ -21,6 +22,10 @@ pub use lm::{LeastSquares, LmReport, levenberg_marquardt};
 pub use rectify::{StereoRectification, rectify, remap};
 pub use stereo::{StereoCalibration, calibrate_stereo};
 pub use subpixel::{refine_corner, window_for_square};
+pub use views::{
+    IMAGE_EXTENSIONS, NumberedPhotos, Pairing, PhotoRecord, Side, board_view, numbered_photos,
+    pair_views, view_number,
+};
 pub use zhang::{intrinsics_from_homographies, pose_from_homography};
 
 use fusegraph_engine::Registry;

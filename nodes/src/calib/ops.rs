@@ -23,33 +23,100 @@ const CORNER_COLUMNS: [&str; 8] = [
     "height_px",
 ];
 
-/// Board views by view id, and the image size (px).
-type ViewsBySize = (BTreeMap<u32, BoardView>, (usize, usize));
+const VIEW_COLUMNS: [&str; 4] = ["view", "found", "width_px", "height_px"];
 
-/// A found board's corners and its image's width and height, or why not.
-type Detection = Result<(Vec<Point2<f64>>, usize, usize), String>;
+/// Boards by view number, each with its image's width and height (px).
+type Boards = BTreeMap<u32, (BoardView, (usize, usize))>;
 
-/// Board views by view id, with the image size, from a corners table.
-pub(crate) fn views_from_table(t: &Table) -> Result<ViewsBySize, OpError> {
+/// A photo's outcome: its corners and image size, or why not (and the image
+/// size when it could be read).
+type Detection = Result<(Vec<Point2<f64>>, usize, usize), (String, (usize, usize))>;
+
+/// Boards by view number, from a corners table.
+pub(crate) fn boards_from_table(t: &Table) -> Result<Boards, OpError> {
     if t.columns.iter().map(String::as_str).ne(CORNER_COLUMNS) {
         return Err(OpError::invalid(format!(
             "not a corners table (columns {:?})",
             t.columns
         )));
     }
-    let mut views: BTreeMap<u32, BoardView> = BTreeMap::new();
-    let mut size = (0, 0);
+    let mut boards: Boards = BTreeMap::new();
     for r in 0..t.row_count() {
         let row = t.row(r);
-        let v = views.entry(row[0] as u32).or_insert_with(|| BoardView {
-            board_mm: Vec::new(),
-            image_px: Vec::new(),
+        let (v, size) = boards.entry(row[0] as u32).or_insert_with(|| {
+            (
+                BoardView {
+                    board_mm: Vec::new(),
+                    image_px: Vec::new(),
+                },
+                (row[6] as usize, row[7] as usize),
+            )
         });
         v.image_px.push(Point2::new(row[2], row[3]));
         v.board_mm.push(Point2::new(row[4], row[5]));
-        size = (row[6] as usize, row[7] as usize);
+        *size = (row[6] as usize, row[7] as usize);
     }
-    Ok((views, size))
+    Ok(boards)
+}
+
+/// Every photo's record by view number, from a views table.
+fn photos_from_table(t: &Table) -> Result<BTreeMap<u32, PhotoRecord>, OpError> {
+    if t.columns.iter().map(String::as_str).ne(VIEW_COLUMNS) {
+        return Err(OpError::invalid(format!(
+            "not a views table from calib.find_chessboard (columns {:?})",
+            t.columns
+        )));
+    }
+    Ok((0..t.row_count())
+        .map(|r| {
+            let row = t.row(r);
+            let record = PhotoRecord {
+                found: row[1] != 0.0,
+                size: (row[2] as usize, row[3] as usize),
+            };
+            (row[0] as u32, record)
+        })
+        .collect())
+}
+
+/// Refuses a calibration whose reprojection error says it is garbage (a
+/// mispaired or mis-detected view), naming the worst views.
+fn check_rms(
+    what: &str,
+    rms_px: f64,
+    max_rms_px: f64,
+    views: &[u32],
+    view_rms_px: &[f64],
+) -> Result<(), OpError> {
+    if rms_px.is_finite() && rms_px <= max_rms_px {
+        return Ok(());
+    }
+    let mut worst: Vec<(f64, u32)> = view_rms_px
+        .iter()
+        .copied()
+        .zip(views.iter().copied())
+        .collect();
+    worst.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let listed: Vec<String> = worst
+        .iter()
+        .take(3)
+        .map(|(e, v)| format!("view {v} {e:.2} px"))
+        .collect();
+    Err(OpError::invalid(format!(
+        "{what} RMS reprojection error {rms_px:.3} px is above max_rms_px = {max_rms_px} px: \
+         a view is probably mispaired or its board mis-detected (worst: {})",
+        listed.join(", ")
+    )))
+}
+
+fn max_rms_param() -> ParamSpec {
+    ParamSpec::float(
+        "max_rms_px",
+        2.0,
+        "px",
+        "Fail when the RMS reprojection error exceeds this (a garbage calibration)",
+    )
+    .at_least(0.0)
 }
 
 fn distortion_mask(params: &Params) -> Result<[bool; 5], OpError> {
@@ -107,7 +174,7 @@ impl FindChessboardOp {
             .param(ParamSpec::string(
                 "glob",
                 "*.png",
-                "File names to use, e.g. left_*.png (sorted; their order is the view id)",
+                "Photos to use, e.g. left_*.png; the last number in a name is its view (left_07.png: 7)",
             ))
             .param(
                 ParamSpec::int_list(
@@ -116,13 +183,19 @@ impl FindChessboardOp {
                     "",
                     "Inner corners per row and per column",
                 )
-                .range(2.0, 100.0),
+                .range(2.0, 100.0)
+                .length(2),
             )
             .param(ParamSpec::float("square_mm", 25.0, "mm", "Square size").at_least(1e-3))
             .output(
                 "corners",
                 ValueType::Table,
                 "view, corner, x_px, y_px, board_x_mm, board_y_mm, width_px, height_px",
+            )
+            .output(
+                "views",
+                ValueType::Table,
+                "Every photo: view, found (1 or 0), width_px, height_px (0 if unreadable)",
             ),
         )
     }
@@ -141,15 +214,35 @@ impl Op for FindChessboardOp {
         };
         let (cols, rows) = (cols as usize, rows as usize);
         let square = params.float("square_mm")?;
-        let table = |found: Vec<(usize, Vec<Point2<f64>>, usize, usize)>| {
+        let corners_table = |found: &[(u32, Vec<Point2<f64>>, usize, usize)]| {
             let mut data = Vec::new();
             for (view, corners, w, h) in found {
                 for (k, c) in corners.iter().enumerate() {
                     let (bx, by) = ((k % cols) as f64 * square, (k / cols) as f64 * square);
-                    data.extend([view as f64, k as f64, c.x, c.y, bx, by, w as f64, h as f64]);
+                    data.extend([
+                        *view as f64,
+                        k as f64,
+                        c.x,
+                        c.y,
+                        bx,
+                        by,
+                        *w as f64,
+                        *h as f64,
+                    ]);
                 }
             }
             Table::new(CORNER_COLUMNS.iter().map(|s| s.to_string()).collect(), data)
+                .map_err(|e| OpError::invalid(e.0))
+        };
+        let views_table = |records: &[(u32, PhotoRecord)]| {
+            let data: Vec<f64> = records
+                .iter()
+                .flat_map(|(v, r)| {
+                    let found = if r.found { 1.0 } else { 0.0 };
+                    [*v as f64, found, r.size.0 as f64, r.size.1 as f64]
+                })
+                .collect();
+            Table::new(VIEW_COLUMNS.iter().map(|s| s.to_string()).collect(), data)
                 .map_err(|e| OpError::invalid(e.0))
         };
         if let Some(img) = inputs.optional::<Image>("image")? {
@@ -157,9 +250,16 @@ impl Op for FindChessboardOp {
                 .map_err(OpError::invalid)?;
             ctx.metric("detected", 1.0);
             ctx.metric("total", 1.0);
-            return Ok(
-                Outputs::new().with("corners", table(vec![(0, corners, img.width, img.height)])?)
-            );
+            let record = PhotoRecord {
+                found: true,
+                size: (img.width, img.height),
+            };
+            return Ok(Outputs::new()
+                .with(
+                    "corners",
+                    corners_table(&[(0, corners, img.width, img.height)])?,
+                )
+                .with("views", views_table(&[(0, record)])?));
         }
         let from_input: Option<Arc<PathValue>> = inputs.optional("dir")?;
         let dir = match (params.optional_path("dir")?, from_input) {
@@ -173,42 +273,59 @@ impl Op for FindChessboardOp {
         };
         let pattern = glob::Pattern::new(&params.string("glob")?)
             .map_err(|e| OpError::invalid(format!("glob: {e}")))?;
-        let mut files: Vec<_> = std::fs::read_dir(&dir)
-            .map_err(|e| OpError::io(&dir, e))?
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| {
-                p.file_name()
-                    .is_some_and(|n| pattern.matches(&n.to_string_lossy()))
-            })
-            .collect();
-        files.sort();
-        if files.is_empty() {
-            return Err(OpError::invalid(format!(
-                "{}: no file matches {:?}",
-                dir.display(),
-                pattern.as_str()
-            )));
+        let photos = numbered_photos(&dir, &pattern).map_err(OpError::invalid)?;
+        for note in &photos.skipped {
+            ctx.note(note.clone());
         }
+        let files: Vec<(u32, &std::path::PathBuf)> =
+            photos.files.iter().map(|(v, f)| (*v, f)).collect();
         let results: Vec<Detection> = files
             .par_iter()
-            .map(|f| {
-                let img = load_grey(f).map_err(|e| e.to_string())?;
+            .map(|(_, f)| {
+                let img = load_grey(f).map_err(|e| (e.to_string(), (0, 0)))?;
                 find_chessboard(&img.levels, img.width, img.height, cols, rows)
                     .map(|c| (c, img.width, img.height))
+                    .map_err(|why| (why, (img.width, img.height)))
             })
             .collect();
         let mut found = Vec::new();
-        for (view, (file, result)) in files.iter().zip(results).enumerate() {
+        let mut records = Vec::new();
+        for ((view, file), result) in files.iter().zip(results) {
+            let name = file.file_name().unwrap_or_default().to_string_lossy();
             match result {
-                Ok((corners, w, h)) => found.push((view, corners, w, h)),
-                Err(why) => {
-                    tracing::info!(node = %ctx.node_id(), "{}: skipped: {why}", file.display())
+                Ok((corners, w, h)) => {
+                    records.push((
+                        *view,
+                        PhotoRecord {
+                            found: true,
+                            size: (w, h),
+                        },
+                    ));
+                    found.push((*view, corners, w, h));
+                }
+                Err((why, size)) => {
+                    let what = if size == (0, 0) {
+                        "unreadable"
+                    } else {
+                        "refused"
+                    };
+                    ctx.note(format!("{name}: {what}: {why}"));
+                    records.push((*view, PhotoRecord { found: false, size }));
                 }
             }
         }
         ctx.metric("detected", found.len() as f64);
         ctx.metric("total", files.len() as f64);
-        Ok(Outputs::new().with("corners", table(found)?))
+        if found.is_empty() {
+            return Err(OpError::invalid(format!(
+                "{}: the {cols} x {rows} board was found in none of the {} photos (see the notes for why)",
+                dir.display(),
+                files.len()
+            )));
+        }
+        Ok(Outputs::new()
+            .with("corners", corners_table(&found)?)
+            .with("views", views_table(&records)?))
     }
 }
 
@@ -217,7 +334,7 @@ impl CalibrateCameraOp {
         CalibrateCameraOp(
             OpSpec::new(
                 "calib.calibrate_camera",
-                1,
+                2,
                 "Zhang calibration refined by Levenberg-Marquardt -> Camera",
             )
             .input(
@@ -230,6 +347,7 @@ impl CalibrateCameraOp {
                 &["k1", "k2", "p1", "p2"],
                 "Distortion coefficients to estimate (others 0)",
             ))
+            .param(max_rms_param())
             .output(
                 "camera",
                 ValueType::Camera,
@@ -244,9 +362,16 @@ impl Op for CalibrateCameraOp {
         &self.0
     }
     fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
-        let (views, (w, h)) = views_from_table(&*inputs.get::<Table>("corners")?)?;
-        let ids: Vec<u32> = views.keys().copied().collect();
-        let views: Vec<BoardView> = views.into_values().collect();
+        let boards = boards_from_table(&*inputs.get::<Table>("corners")?)?;
+        let ids: Vec<u32> = boards.keys().copied().collect();
+        let (w, h) = boards.values().next().map(|b| b.1).unwrap_or((0, 0));
+        if let Some((v, (_, size))) = boards.iter().find(|(_, b)| b.1 != (w, h)) {
+            return Err(OpError::invalid(format!(
+                "the photos differ in size: view {} is {w} x {h} px, view {v} {} x {} px; one camera takes one size",
+                ids[0], size.0, size.1
+            )));
+        }
+        let views: Vec<BoardView> = boards.into_values().map(|b| b.0).collect();
         let c =
             calibrate_camera(&views, w, h, distortion_mask(params)?).map_err(OpError::invalid)?;
         ctx.metric("rms_px", c.rms_px);
@@ -254,6 +379,13 @@ impl Op for CalibrateCameraOp {
         for (id, e) in ids.iter().zip(&c.view_rms_px) {
             ctx.metric(&format!("view_{id}_rms_px"), *e);
         }
+        check_rms(
+            "camera",
+            c.rms_px,
+            params.float("max_rms_px")?,
+            &ids,
+            &c.view_rms_px,
+        )?;
         Ok(Outputs::new().with("camera", c.camera.to_value()))
     }
 }
@@ -263,7 +395,7 @@ impl StereoCalibrateOp {
         StereoCalibrateOp(
             OpSpec::new(
                 "calib.stereo_calibrate",
-                1,
+                2,
                 "Both cameras and the rig extrinsics, refined jointly -> StereoRig",
             )
             .input(
@@ -274,13 +406,24 @@ impl StereoCalibrateOp {
             .input(
                 "right",
                 &[ValueType::Table],
-                "Right corners; views pair by id (file order)",
+                "Right corners; views pair by number (left_07 with right_07)",
+            )
+            .optional_input(
+                "left_views",
+                &[ValueType::Table],
+                "The left find_chessboard's `views`: tells a refused photo from a missing one",
+            )
+            .optional_input(
+                "right_views",
+                &[ValueType::Table],
+                "The right find_chessboard's `views`",
             )
             .param(ParamSpec::string_list(
                 "free",
                 &["k1", "k2", "p1", "p2"],
                 "Distortion coefficients to estimate (others 0)",
             ))
+            .param(max_rms_param())
             .output(
                 "rig",
                 ValueType::StereoRig,
@@ -295,20 +438,36 @@ impl Op for StereoCalibrateOp {
         &self.0
     }
     fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
-        let (left, lsize) = views_from_table(&*inputs.get::<Table>("left")?)?;
-        let (mut right, rsize) = views_from_table(&*inputs.get::<Table>("right")?)?;
-        let pairs: Vec<(BoardView, BoardView)> = left
-            .into_iter()
-            .filter_map(|(id, l)| right.remove(&id).map(|r| (l, r)))
-            .collect();
-        let s = calibrate_stereo(&pairs, [lsize, rsize], distortion_mask(params)?)
+        let side = |corners: &str, views: &str| -> Result<Side, OpError> {
+            Ok(Side {
+                boards: boards_from_table(&*inputs.get::<Table>(corners)?)?,
+                photos: inputs
+                    .optional::<Table>(views)?
+                    .map(|t| photos_from_table(&t))
+                    .transpose()?,
+            })
+        };
+        let (left, right) = (side("left", "left_views")?, side("right", "right_views")?);
+        let pairing = pair_views(&left, &right, 3).map_err(OpError::invalid)?;
+        for dropped in &pairing.dropped {
+            ctx.note(format!("{dropped}: pair left out"));
+        }
+        let s = calibrate_stereo(&pairing.pairs, pairing.sizes, distortion_mask(params)?)
             .map_err(OpError::invalid)?;
-        ctx.metric("pairs", pairs.len() as f64);
+        ctx.metric("pairs", pairing.pairs.len() as f64);
+        ctx.metric("pairs_left_out", pairing.dropped.len() as f64);
         ctx.metric("rms_px", s.rms_px);
         ctx.metric("rms_left_px", s.rms_left_right_px[0]);
         ctx.metric("rms_right_px", s.rms_left_right_px[1]);
         ctx.metric("baseline_mm", s.left_to_right.translation.vector.norm());
         ctx.metric("verging_deg", s.left_to_right.rotation.angle().to_degrees());
+        check_rms(
+            "stereo",
+            s.rms_px,
+            params.float("max_rms_px")?,
+            &pairing.views,
+            &s.pair_rms_px,
+        )?;
         let m = isometry_to_matrix(&s.left_to_right);
         let rig = StereoRig {
             left: s.left.to_value(),

@@ -24,6 +24,8 @@ pub struct StereoCalibration {
     pub rms_px: f64,
     /// RMS of the left and right images, px.
     pub rms_left_right_px: [f64; 2],
+    /// RMS of each pair (both images), px.
+    pub pair_rms_px: Vec<f64>,
     /// The single-camera calibrations it started from.
     pub mono: [CameraCalibration; 2],
 }
@@ -159,13 +161,20 @@ pub fn calibrate_stereo(
         .map(|p| pose_from(&report.x.as_slice()[o + 6 + 6 * p..o + 12 + 6 * p]))
         .collect();
     let (mut sums, mut counts) = ([0.0f64; 2], [0usize; 2]);
+    let mut pair_rms_px = Vec::with_capacity(pairs.len());
     for (p, (left_view, right_view)) in pairs.iter().enumerate() {
         let r = problem.block(&report.x, p);
         let n_left = 2 * left_view.board_mm.len();
-        sums[0] += r[..n_left].iter().map(|e| e * e).sum::<f64>();
-        sums[1] += r[n_left..].iter().map(|e| e * e).sum::<f64>();
+        let (l, rr) = (
+            r[..n_left].iter().map(|e| e * e).sum::<f64>(),
+            r[n_left..].iter().map(|e| e * e).sum::<f64>(),
+        );
+        sums[0] += l;
+        sums[1] += rr;
         counts[0] += left_view.board_mm.len();
         counts[1] += right_view.board_mm.len();
+        let n = left_view.board_mm.len() + right_view.board_mm.len();
+        pair_rms_px.push(((l + rr) / n.max(1) as f64).sqrt());
     }
     Ok(StereoCalibration {
         left: lc,
@@ -177,6 +186,7 @@ pub fn calibrate_stereo(
             (sums[0] / counts[0] as f64).sqrt(),
             (sums[1] / counts[1] as f64).sqrt(),
         ],
+        pair_rms_px,
         mono: [left, right],
     })
 }

@@ -145,7 +145,8 @@ impl WriteCloudOp {
                     "",
                     "RGB of the first cloud (if it has no colours)",
                 )
-                .range(0.0, 255.0),
+                .range(0.0, 255.0)
+                .length(3),
             )
             .param(
                 ParamSpec::int_list(
@@ -154,7 +155,8 @@ impl WriteCloudOp {
                     "",
                     "RGB of the second cloud",
                 )
-                .range(0.0, 255.0),
+                .range(0.0, 255.0)
+                .length(3),
             )
             .param(ParamSpec::string(
                 "file",

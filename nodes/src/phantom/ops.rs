@@ -51,7 +51,7 @@ impl GenerateOp {
                 &lesions,
                 "mm",
                 "Lesion centres in the phantom frame, flattened x, y, z triples",
-            ))
+            ).length_multiple_of(3))
             .param(ParamSpec::float("lesion_diameter_mm", d.lesion_diameter_mm, "mm", "Lesion diameter").range(1.0, 20.0))
             .param(ParamSpec::float("oblique_deg", c.oblique_deg, "deg", "Tilt of the MRI slices from axial").range(-45.0, 45.0))
             .param(ParamSpec::float("mri_noise", c.mri_noise_sigma, "", "MRI noise sigma (tissue signal 0.55)").range(0.0, 0.3))

@@ -209,7 +209,8 @@ impl LinesOp {
             .param(ParamSpec::bool("log_y", false, "Logarithmic y axis"))
             .param(
                 ParamSpec::int_list("size_px", &[800, 560], "px", "Width and height")
-                    .range(100.0, 8000.0),
+                    .range(100.0, 8000.0)
+                    .length(2),
             )
             .param(ParamSpec::string(
                 "file",

@@ -455,7 +455,8 @@ impl RemoveColourOp {
                     "deg",
                     "Hue range [min, max]; min > max wraps through 0 (default: the markers' green, as stereo.hsv_markers)",
                 )
-                .range(0.0, 360.0),
+                .range(0.0, 360.0)
+                .length(2),
             )
             .param(
                 ParamSpec::float("min_saturation", b.min_saturation, "", "Smallest saturation (0..1)")
@@ -519,12 +520,15 @@ impl NormalsOp {
                 &["viewpoint", "outward"],
                 "Towards the viewpoint, or away from the centroid",
             ))
-            .param(ParamSpec::float_list(
-                "viewpoint_mm",
-                &[0.0, 0.0, 0.0],
-                "mm",
-                "Viewpoint (the camera centre is the origin of camera frames)",
-            ))
+            .param(
+                ParamSpec::float_list(
+                    "viewpoint_mm",
+                    &[0.0, 0.0, 0.0],
+                    "mm",
+                    "Viewpoint (the camera centre is the origin of camera frames)",
+                )
+                .length(3),
+            )
             .output(
                 "cloud",
                 ValueType::PointCloud,

@@ -207,7 +207,8 @@ impl SgmOp {
             ))
             .param(
                 ParamSpec::int_list("census_window", &[width as i64, height as i64], "px", "Census window width, height (odd; area <= 65)")
-                    .range(1.0, 65.0),
+                    .range(1.0, 65.0)
+                    .length(2),
             )
             .param(
                 ParamSpec::int("bt_window", 5, "px", "Window the BT cost is averaged over (odd)")

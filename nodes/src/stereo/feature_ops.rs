@@ -278,7 +278,7 @@ impl MatchFeaturesOp {
                 &[],
                 "px",
                 "[min, max] allowed x_left - x_right; empty: no bound",
-            ))
+            ).lengths(&[0, 2]))
             .output("matches", ValueType::Matches, "Matched positions (px) and descriptor distances")
             .output(
                 "table",

@@ -58,7 +58,8 @@ impl HsvMarkersOp {
                     "deg",
                     "Hue range [min, max]; min > max wraps through 0 (default: the phantom's green)",
                 )
-                .range(0.0, 360.0),
+                .range(0.0, 360.0)
+                .length(2),
             )
             .param(
                 ParamSpec::float("min_saturation", b.min_saturation, "", "Smallest saturation (0..1)")

@@ -1,0 +1,338 @@
+//! Which photo is which view: photos are numbered by the last number in their
+//! file name (`left_07.png`, `left07.jpg`, `IMG_0007.JPG`: view 7), so that a
+//! stereo pair is the left and right photo of one number, whatever other files
+//! the folder holds and whichever photos are missing or refused.
+
+use nalgebra::Point2;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use super::BoardView;
+
+/// File extensions read as images (case-insensitive).
+pub const IMAGE_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
+
+/// The view number of a photo: the last run of digits in its file name
+/// before the extension (`left_07.png` -> 7, `cam2_shot0042.jpg` -> 42).
+pub fn view_number(file_name: &str) -> Option<u32> {
+    let stem = Path::new(file_name).file_stem()?.to_str()?;
+    let end = stem.rfind(|c: char| c.is_ascii_digit())? + 1;
+    let start = stem[..end]
+        .rfind(|c: char| !c.is_ascii_digit())
+        .map_or(0, |i| i + 1);
+    stem[start..end].parse().ok()
+}
+
+/// Photos of a folder by view number, and what was left out and why.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct NumberedPhotos {
+    /// View number -> file.
+    pub files: BTreeMap<u32, PathBuf>,
+    /// Files the glob matched that are not used, each with the reason.
+    pub skipped: Vec<String>,
+}
+
+/// The image files of `dir` whose names match `glob`, numbered by
+/// [`view_number`]. Files that are not images by their extension, or have no
+/// number in their name, are skipped (and listed); two photos with one number
+/// are an error naming both, since either could be the view.
+pub fn numbered_photos(dir: &Path, glob: &glob::Pattern) -> Result<NumberedPhotos, String> {
+    let entries = std::fs::read_dir(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    let mut names: Vec<(String, PathBuf)> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_file())
+        .filter_map(|p| Some((p.file_name()?.to_string_lossy().into_owned(), p)))
+        .filter(|(n, _)| glob.matches(n))
+        .collect();
+    names.sort();
+    let mut out = NumberedPhotos::default();
+    for (name, path) in names {
+        let ext = path
+            .extension()
+            .map(|e| e.to_string_lossy().to_lowercase())
+            .unwrap_or_default();
+        if !IMAGE_EXTENSIONS.contains(&ext.as_str()) {
+            out.skipped.push(format!(
+                "{name}: skipped: not an image (reads {})",
+                IMAGE_EXTENSIONS.join(", ")
+            ));
+            continue;
+        }
+        let Some(n) = view_number(&name) else {
+            out.skipped.push(format!(
+                "{name}: skipped: no number in its name to tell which view it is"
+            ));
+            continue;
+        };
+        if let Some(other) = out.files.insert(n, path) {
+            let other = other.file_name().unwrap_or_default().to_string_lossy();
+            return Err(format!(
+                "{}: {other} and {name} both number view {n}; rename one or narrow the glob",
+                dir.display()
+            ));
+        }
+    }
+    if out.files.is_empty() {
+        let why = if out.skipped.is_empty() {
+            String::new()
+        } else {
+            format!(" ({})", out.skipped.join("; "))
+        };
+        return Err(format!(
+            "{}: no image matches {:?}{why}",
+            dir.display(),
+            glob.as_str()
+        ));
+    }
+    Ok(out)
+}
+
+/// What one camera's detection made of one photo.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PhotoRecord {
+    /// Whether the board was found.
+    pub found: bool,
+    /// Image width and height, px (0 x 0 when it could not be read).
+    pub size: (usize, usize),
+}
+
+/// One side of a stereo calibration: its boards by view number and, when
+/// known, every photo's record (to tell a refused photo from a missing one).
+#[derive(Debug, Clone, Default)]
+pub struct Side {
+    /// Boards found, with their image size, by view number.
+    pub boards: BTreeMap<u32, (BoardView, (usize, usize))>,
+    /// Every photo of this side by view number, if known.
+    pub photos: Option<BTreeMap<u32, PhotoRecord>>,
+}
+
+impl Side {
+    /// What became of view `v` on this side, in words.
+    fn fate(&self, v: u32) -> &'static str {
+        if self.boards.contains_key(&v) {
+            return "board found";
+        }
+        match self.photos.as_ref().map(|p| p.get(&v)) {
+            Some(Some(r)) if r.size == (0, 0) => "photo unreadable",
+            Some(Some(_)) => "board refused",
+            Some(None) => "no photo",
+            None => "no board (refused or no photo)",
+        }
+    }
+
+    fn views(&self) -> impl Iterator<Item = u32> + '_ {
+        self.boards
+            .keys()
+            .copied()
+            .chain(self.photos.iter().flat_map(|p| p.keys().copied()))
+    }
+}
+
+/// Stereo pairs by view number, and notes on the views left out.
+#[derive(Debug, Clone)]
+pub struct Pairing {
+    /// View numbers of the pairs, in order.
+    pub views: Vec<u32>,
+    /// The pairs' boards (left, right).
+    pub pairs: Vec<(BoardView, BoardView)>,
+    /// Left and right image sizes, px.
+    pub sizes: [(usize, usize); 2],
+    /// One line per view left out: which side lacks the board, and why.
+    pub dropped: Vec<String>,
+}
+
+/// Pairs the left and right boards of each view number. Views with a board on
+/// one side only are left out and listed; a pair whose two photos differ in
+/// size, or photos of one camera that differ in size, are errors. Fewer than
+/// `min_pairs` pairs is an error listing every view's fate on both sides.
+pub fn pair_views(left: &Side, right: &Side, min_pairs: usize) -> Result<Pairing, String> {
+    let mut all: Vec<u32> = left.views().chain(right.views()).collect();
+    all.sort_unstable();
+    all.dedup();
+    let size_of = |side: &Side, v: u32| {
+        side.boards.get(&v).map(|b| b.1).or_else(|| {
+            side.photos
+                .as_ref()?
+                .get(&v)
+                .map(|r| r.size)
+                .filter(|&s| s != (0, 0))
+        })
+    };
+    for (name, side) in [("left", left), ("right", right)] {
+        let mut sizes: BTreeMap<(usize, usize), Vec<u32>> = BTreeMap::new();
+        for &v in &all {
+            if let Some(s) = size_of(side, v) {
+                sizes.entry(s).or_default().push(v);
+            }
+        }
+        if sizes.len() > 1 {
+            let listed: Vec<String> = sizes
+                .iter()
+                .map(|((w, h), vs)| format!("{w} x {h} px: views {vs:?}"))
+                .collect();
+            return Err(format!(
+                "the {name} photos differ in size ({}); one camera takes one size",
+                listed.join("; ")
+            ));
+        }
+    }
+    for &v in &all {
+        if let (Some(l), Some(r)) = (size_of(left, v), size_of(right, v))
+            && l != r
+        {
+            return Err(format!(
+                "view {v}: the left photo is {} x {} px but the right one {} x {} px",
+                l.0, l.1, r.0, r.1
+            ));
+        }
+    }
+    let mut pairing = Pairing {
+        views: Vec::new(),
+        pairs: Vec::new(),
+        sizes: [(0, 0); 2],
+        dropped: Vec::new(),
+    };
+    for &v in &all {
+        match (left.boards.get(&v), right.boards.get(&v)) {
+            (Some((l, ls)), Some((r, rs))) => {
+                pairing.views.push(v);
+                pairing.pairs.push((l.clone(), r.clone()));
+                pairing.sizes = [*ls, *rs];
+            }
+            _ => pairing.dropped.push(format!(
+                "view {v}: left {}, right {}",
+                left.fate(v),
+                right.fate(v)
+            )),
+        }
+    }
+    if pairing.pairs.len() < min_pairs {
+        return Err(format!(
+            "{} usable pair{} of {} views, {min_pairs} needed (the find_chessboard nodes' notes say why each board was refused): {}",
+            pairing.pairs.len(),
+            if pairing.pairs.len() == 1 { "" } else { "s" },
+            all.len(),
+            pairing.dropped.join("; ")
+        ));
+    }
+    Ok(pairing)
+}
+
+/// A board view from corner positions (px) of a `cols`-wide pattern of
+/// `square_mm` squares, in the detector's order.
+pub fn board_view(corners: &[Point2<f64>], cols: usize, square_mm: f64) -> BoardView {
+    BoardView {
+        board_mm: (0..corners.len())
+            .map(|k| Point2::new((k % cols) as f64 * square_mm, (k / cols) as f64 * square_mm))
+            .collect(),
+        image_px: corners.to_vec(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn views_are_numbered_by_the_last_number_in_the_name() {
+        assert_eq!(view_number("left_07.png"), Some(7));
+        assert_eq!(view_number("right07.jpg"), Some(7));
+        assert_eq!(view_number("cam2_shot0042.JPG"), Some(42));
+        assert_eq!(view_number("0003_left.png"), Some(3));
+        assert_eq!(view_number("left_intrinsics.png"), None);
+    }
+
+    fn touch(dir: &Path, names: &[&str]) {
+        for n in names {
+            std::fs::write(dir.join(n), b"x").unwrap();
+        }
+    }
+
+    #[test]
+    fn non_images_and_unnumbered_files_do_not_shift_the_views() {
+        let d = tempfile::tempdir().unwrap();
+        touch(
+            d.path(),
+            &[
+                "left_01.png",
+                "left_02.png",
+                "left_intrinsics.yml",
+                "left_notes.png",
+                "left_10.png",
+            ],
+        );
+        let p = numbered_photos(d.path(), &glob::Pattern::new("left_*").unwrap()).unwrap();
+        assert_eq!(p.files.keys().copied().collect::<Vec<_>>(), [1, 2, 10]);
+        assert_eq!(p.skipped.len(), 2, "{:?}", p.skipped);
+        assert!(p.skipped[0].starts_with("left_intrinsics.yml: skipped: not an image"));
+        assert!(p.skipped[1].starts_with("left_notes.png: skipped: no number"));
+        touch(d.path(), &["left_1.png"]);
+        let e = numbered_photos(d.path(), &glob::Pattern::new("left_*").unwrap()).unwrap_err();
+        assert!(
+            e.contains("left_01.png and left_1.png both number view 1"),
+            "{e}"
+        );
+        let e = numbered_photos(d.path(), &glob::Pattern::new("right_*").unwrap()).unwrap_err();
+        assert!(e.contains("no image matches \"right_*\""), "{e}");
+    }
+
+    fn side(found: &[u32], refused: &[u32], size: (usize, usize)) -> Side {
+        let view = board_view(&[Point2::new(1.0, 2.0)], 1, 25.0);
+        let mut photos: BTreeMap<u32, PhotoRecord> = BTreeMap::new();
+        for &v in found {
+            photos.insert(v, PhotoRecord { found: true, size });
+        }
+        for &v in refused {
+            photos.insert(v, PhotoRecord { found: false, size });
+        }
+        Side {
+            boards: found.iter().map(|&v| (v, (view.clone(), size))).collect(),
+            photos: Some(photos),
+        }
+    }
+
+    #[test]
+    fn pairs_by_number_and_says_what_each_dropped_view_lacks() {
+        // An extra left photo (view 9), a missing right photo (view 4), a
+        // refused right board (view 2).
+        let left = side(&[1, 2, 3, 4, 5, 9], &[], (640, 480));
+        let right = side(&[1, 3, 5], &[2], (640, 480));
+        let p = pair_views(&left, &right, 3).unwrap();
+        assert_eq!(p.views, [1, 3, 5]);
+        assert_eq!(
+            p.dropped,
+            [
+                "view 2: left board found, right board refused",
+                "view 4: left board found, right no photo",
+                "view 9: left board found, right no photo",
+            ]
+        );
+        let e = pair_views(&left, &right, 4).unwrap_err();
+        assert!(e.starts_with("3 usable pairs of 6 views, 4 needed"), "{e}");
+        assert!(
+            e.contains("view 2: left board found, right board refused"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn photos_of_a_pair_must_have_one_size() {
+        let left = side(&[1, 2, 3], &[], (640, 480));
+        let right = side(&[1, 2, 3], &[], (800, 600));
+        let e = pair_views(&left, &right, 3).unwrap_err();
+        assert_eq!(
+            e,
+            "view 1: the left photo is 640 x 480 px but the right one 800 x 600 px"
+        );
+        let mut mixed = side(&[1, 2], &[], (640, 480));
+        mixed.photos.as_mut().unwrap().insert(
+            3,
+            PhotoRecord {
+                found: false,
+                size: (320, 240),
+            },
+        );
+        let e = pair_views(&mixed, &side(&[1, 2], &[], (640, 480)), 2).unwrap_err();
+        assert!(e.starts_with("the left photos differ in size"), "{e}");
+    }
+}

@@ -1,0 +1,225 @@
+//! Inputs as users bring them: stereo photos paired by the number in their
+//! names whatever else the folder holds, pairs of different sizes, too few
+//! pairs, an absurd calibration, malformed list parameters; warnings in
+//! report.json and the CLI summary, on a cached re-run too.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::OnceLock;
+
+fn fusegraph(args: &[&str], cwd: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_fusegraph"))
+        .args(args)
+        .current_dir(cwd)
+        .output()
+        .expect("fusegraph runs")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// The small phantom's calibration photos, written once for this file's tests.
+fn phantom_calib() -> &'static Path {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let t = tempfile::tempdir().unwrap().keep();
+        let o = fusegraph(&["phantom", "--out", "ph", "--size", "small"], &t);
+        assert!(o.status.success(), "{}", stderr(&o));
+        t.join("ph/calib")
+    })
+}
+
+/// A folder of photos taken from the phantom's calibration pairs:
+/// `(source, name)` copies, so a test can drop, add and rename files.
+fn photo_folder(files: &[(&str, &str)]) -> tempfile::TempDir {
+    let t = tempfile::tempdir().unwrap();
+    std::fs::create_dir(t.path().join("photos")).unwrap();
+    for (from, to) in files {
+        std::fs::copy(phantom_calib().join(from), t.path().join("photos").join(to)).unwrap();
+    }
+    std::fs::write(t.path().join("stereo.toml"), STEREO_GRAPH).unwrap();
+    t
+}
+
+const STEREO_GRAPH: &str = r#"
+[graph]
+name = "pairs"
+
+[node.left_corners]
+op = "calib.find_chessboard"
+dir = "photos"
+glob = "left*"
+
+[node.right_corners]
+op = "calib.find_chessboard"
+dir = "photos"
+glob = "right*"
+
+[node.stereo]
+op = "calib.stereo_calibrate"
+in.left = "left_corners.corners"
+in.right = "right_corners.corners"
+in.left_views = "left_corners.views"
+in.right_views = "right_corners.views"
+"#;
+
+fn report(dir: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(dir.join("out/pairs/report.json")).unwrap();
+    serde_json::from_str(&text).unwrap()
+}
+
+fn notes(r: &serde_json::Value, node: &str) -> Vec<String> {
+    r["nodes"][node]["notes"]
+        .as_array()
+        .map(|a| a.iter().map(|n| n.as_str().unwrap().to_string()).collect())
+        .unwrap_or_default()
+}
+
+/// Views 0-7 as `left_NN.png` and `rightNN.png` (two naming styles).
+fn eight_pairs() -> Vec<(String, String)> {
+    (0..8)
+        .flat_map(|v| {
+            [
+                (format!("left_{v:02}.png"), format!("left_{v:02}.png")),
+                (format!("right_{v:02}.png"), format!("right{v:02}.png")),
+            ]
+        })
+        .collect()
+}
+
+fn as_refs(v: &[(String, String)]) -> Vec<(&str, &str)> {
+    v.iter().map(|(a, b)| (a.as_str(), b.as_str())).collect()
+}
+
+#[test]
+fn photos_pair_by_the_number_in_their_names() {
+    let mut files = eight_pairs();
+    // One right photo missing, one extra left photo, a non-image the glob
+    // also matches: none of them may shift the pairing.
+    files.retain(|(_, to)| to != "right03.png");
+    files.push(("left_12.png".into(), "left_12.png".into()));
+    let t = photo_folder(&as_refs(&files));
+    std::fs::write(t.path().join("photos/left_intrinsics.yml"), "%YAML:1.0\n").unwrap();
+    let o = fusegraph(&["run", "stereo.toml"], t.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r = report(t.path());
+    let m = &r["metrics"];
+    assert_eq!(m["stereo.pairs"], 7.0);
+    assert!(m["stereo.rms_px"].as_f64().unwrap() < 0.2, "{m}");
+    assert!(
+        (m["stereo.baseline_mm"].as_f64().unwrap() - 55.0).abs() < 0.5,
+        "{m}"
+    );
+    let left = notes(&r, "left_corners");
+    assert!(
+        left.iter()
+            .any(|n| n.starts_with("left_intrinsics.yml: skipped: not an image")),
+        "{left:?}"
+    );
+    let stereo = notes(&r, "stereo");
+    assert_eq!(
+        stereo,
+        [
+            "view 3: left board found, right no photo: pair left out",
+            "view 12: left board found, right no photo: pair left out",
+        ]
+    );
+    assert_eq!(r["warnings"], 3);
+    let summary = stderr(&o);
+    assert!(
+        summary.contains("3 warnings (left_corners 1, stereo 2)"),
+        "{summary}"
+    );
+    // A cached re-run still shows them.
+    let again = fusegraph(&["run", "stereo.toml"], t.path());
+    assert!(again.status.success());
+    let r = report(t.path());
+    assert_eq!(r["nodes"]["stereo"]["status"], "cached");
+    assert_eq!(notes(&r, "stereo"), stereo);
+    assert!(stderr(&again).contains("3 warnings"), "{}", stderr(&again));
+}
+
+#[test]
+fn a_pair_of_different_sizes_is_an_error_naming_the_view() {
+    let t = photo_folder(&as_refs(&eight_pairs()));
+    let right = t.path().join("photos/right05.png");
+    let small = image::open(&right)
+        .unwrap()
+        .resize_exact(400, 300, image::imageops::Triangle);
+    small.save(&right).unwrap();
+    let o = fusegraph(&["run", "stereo.toml"], t.path());
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let r = report(t.path());
+    let err = r["nodes"]["stereo"]["error"].as_str().unwrap();
+    assert!(err.contains("the right photos differ in size"), "{err}");
+    assert!(err.contains("400 x 300 px: views [5]"), "{err}");
+}
+
+#[test]
+fn too_few_pairs_says_which_side_lacks_which_view() {
+    let mut files = eight_pairs();
+    files.retain(|(_, to)| !to.starts_with("right") || to == "right00.png" || to == "right01.png");
+    let t = photo_folder(&as_refs(&files));
+    let o = fusegraph(&["run", "stereo.toml"], t.path());
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let err = report(t.path())["nodes"]["stereo"]["error"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    assert!(
+        err.starts_with("2 usable pairs of 8 views, 3 needed"),
+        "{err}"
+    );
+    assert!(
+        err.contains("view 7: left board found, right no photo"),
+        "{err}"
+    );
+}
+
+#[test]
+fn an_absurd_calibration_fails_instead_of_passing_a_garbage_rig_on() {
+    // The right photos numbered one view late: every pair is a mismatch.
+    let files: Vec<(String, String)> = (0..8)
+        .flat_map(|v| {
+            [
+                (format!("left_{v:02}.png"), format!("left_{v:02}.png")),
+                (
+                    format!("right_{:02}.png", v + 1),
+                    format!("right{v:02}.png"),
+                ),
+            ]
+        })
+        .collect();
+    let t = photo_folder(&as_refs(&files));
+    let o = fusegraph(&["run", "stereo.toml"], t.path());
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let err = report(t.path())["nodes"]["stereo"]["error"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    assert!(err.contains("is above max_rms_px = 2 px"), "{err}");
+    assert!(err.contains("worst: view "), "{err}");
+}
+
+#[test]
+fn a_pattern_of_three_numbers_fails_validation() {
+    let t = photo_folder(&[]);
+    let o = fusegraph(
+        &[
+            "validate",
+            "stereo.toml",
+            "--set",
+            "left_corners.pattern=[9, 6, 10]",
+        ],
+        t.path(),
+    );
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(
+        e.contains("node `left_corners`")
+            && e.contains("pattern")
+            && e.contains("a list of 3 items, expected 2"),
+        "{e}"
+    );
+}

@@ -157,7 +157,7 @@ impl ListLength {
     pub fn allows(&self, n: usize) -> bool {
         match self {
             ListLength::OneOf(lengths) => lengths.contains(&n),
-            ListLength::MultipleOf(k) => n % k == 0,
+            ListLength::MultipleOf(k) => n.is_multiple_of(*k),
         }
     }
 }

@@ -183,7 +183,14 @@ const JPEG_LS: [&str; 2] = ["1.2.840.10008.1.2.4.80", "1.2.840.10008.1.2.4.81"];
 /// geometry, an unsupported transfer syntax or sample format. Objects without
 /// pixel data come back as [`FileContent::NotImage`].
 pub fn read_file(path: &Path) -> Result<FileContent, String> {
-    let obj: DefaultDicomObject = dicom_object::open_file(path)
+    let obj: DefaultDicomObject = std::panic::catch_unwind(|| dicom_object::open_file(path))
+        .map_err(|payload| {
+            format!(
+                "{}: unreadable DICOM file: the parser failed on it: {}",
+                path.display(),
+                panic_text(payload.as_ref())
+            )
+        })?
         .map_err(|e| format!("{}: unreadable DICOM file: {e}", path.display()))?;
     if let Some(why) = not_an_image(&obj) {
         return Ok(FileContent::NotImage(why));

@@ -2,17 +2,22 @@
 //!
 //! Files are read with dicom-object and decoded with dicom-pixeldata (every
 //! uncompressed transfer syntax, deflate, RLE, JPEG baseline/lossless, JPEG 2000
-//! via the pure-Rust openjp2 port; JPEG-LS needs a C library and is reported as
-//! unsupported, naming the syntax). Geometry comes from ImagePositionPatient,
-//! ImageOrientationPatient and PixelSpacing; slices are ordered by their position
-//! along the slice normal, never by file name or InstanceNumber.
+//! via the pure-Rust openjp2 port). JPEG-LS is reported as unsupported, naming
+//! the file and syntax: dicom-pixeldata decodes it only through CharLS, whose
+//! `charls` feature builds the C++ library with CMake (not on a clean machine).
+//! 8-, 16- and 32-bit integer samples are read (32-bit: RT Dose, with
+//! DoseGridScaling applied and frames placed by GridFrameOffsetVector).
+//! Geometry comes from ImagePositionPatient, ImageOrientationPatient and
+//! PixelSpacing; slices are ordered by their position along the slice normal,
+//! never by file name or InstanceNumber. Non-image objects in a folder (DICOMDIR,
+//! structured reports, RT plans, ...) are skipped with a warning per file.
 
 mod frames;
 mod ops;
 mod series;
 
-pub use frames::{Frame, read_frames};
-pub use series::{LoadedSeries, SeriesError, assemble, load_series};
+pub use frames::{FileContent, Frame, read_file, read_frames};
+pub use series::{LoadedSeries, MAX_NAMED_SKIPS, SeriesError, assemble, load_series};
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;

@@ -14,7 +14,7 @@ impl LoadSeriesOp {
         LoadSeriesOp(
             OpSpec::new(
                 "dicom.load_series",
-                1,
+                2,
                 "Read a DICOM series (a folder of slices, or one multi-frame file) as a volume in patient LPS mm",
             )
             .optional_input("dir", &[ValueType::Path], "Folder or file from another node (instead of `path`)")
@@ -50,7 +50,7 @@ impl Op for LoadSeriesOp {
         let series = load_series(&path, (!uid.is_empty()).then_some(uid.as_str()))
             .map_err(|e| OpError::invalid(e.to_string()))?;
         for w in &series.warnings {
-            tracing::warn!(node = %ctx.node_id(), "{w}");
+            ctx.note(w.clone());
         }
         let spacing = series.grid.spacing_mm();
         ctx.metric("files", series.files as f64);

@@ -2,7 +2,7 @@
 //! regular grid (one orientation, one size, evenly spaced along the normal), and
 //! building the voxel -> patient affine.
 
-use super::frames::{Frame, looks_like_dicom, read_frames};
+use super::frames::{FileContent, Frame, looks_like_dicom, read_file};
 use fusegraph_engine::value::Grid;
 use rayon::prelude::*;
 use std::collections::BTreeMap;
@@ -14,9 +14,14 @@ pub enum SeriesError {
     /// A file cannot be read or decoded (the message names it).
     #[error("{0}")]
     File(String),
-    /// No DICOM file was found.
-    #[error("{0}: no DICOM files found")]
-    Empty(PathBuf),
+    /// No DICOM image was found; `skipped` says what the folder held instead.
+    #[error("{}: no DICOM image found{}", dir.display(), skipped_list(skipped))]
+    Empty {
+        /// The folder or file.
+        dir: PathBuf,
+        /// One line per skipped file: the file and why.
+        skipped: Vec<String>,
+    },
     /// Several series and no choice.
     #[error("{dir}: holds {count} series; choose one with series_uid: {list}")]
     SeveralSeries {
@@ -59,7 +64,9 @@ pub struct LoadedSeries {
     pub series_uid: String,
     /// Number of files read.
     pub files: usize,
-    /// Things worth knowing that did not stop the load.
+    /// Things worth knowing that did not stop the load, for the user: each
+    /// skipped file (named, relative to the folder, with the reason; at most
+    /// [`MAX_NAMED_SKIPS`], then a count), then remarks on the geometry.
     pub warnings: Vec<String>,
 }
 
@@ -84,42 +91,83 @@ fn describe(groups: &BTreeMap<String, Vec<Frame>>) -> String {
         .join("; ")
 }
 
+fn skipped_list(skipped: &[String]) -> String {
+    match skipped.len() {
+        0 => String::new(),
+        n if n <= MAX_NAMED_SKIPS => format!("; skipped: {}", skipped.join("; ")),
+        n => format!(
+            "; skipped {n} files: {}; and {} more",
+            skipped[..MAX_NAMED_SKIPS].join("; "),
+            n - MAX_NAMED_SKIPS
+        ),
+    }
+}
+
+/// At most this many skipped files are named one by one; the rest are counted.
+pub const MAX_NAMED_SKIPS: usize = 20;
+
+/// `file` as the user gave it: relative to the folder read, if inside it.
+fn shown(file: &Path, root: &Path) -> String {
+    file.strip_prefix(root)
+        .ok()
+        .filter(|r| !r.as_os_str().is_empty())
+        .unwrap_or(file)
+        .display()
+        .to_string()
+}
+
 /// Reads a folder of slices (or one single- or multi-frame file) as a volume.
-/// Files without the DICOM preamble are skipped (with a warning); a DICOM file
-/// that fails to parse or decode is an error naming it.
+///
+/// What a CD or PACS export puts beside the images is skipped, one warning per
+/// file naming it and why: files without the DICOM Part 10 header (128-byte
+/// preamble and "DICM"), DICOMDIR, and objects without pixel data (structured
+/// reports, RT structure sets and plans, presentation states, ...). A DICOM
+/// image that fails to parse or decode is an error naming it, as is a folder
+/// with no image at all (naming what was skipped).
 pub fn load_series(path: &Path, series_uid: Option<&str>) -> Result<LoadedSeries, SeriesError> {
-    let mut warnings = Vec::new();
+    let mut skipped = Vec::new();
     let files: Vec<PathBuf> = if path.is_dir() {
         let mut files = Vec::new();
         collect_files(path, &mut files)
             .map_err(|e| SeriesError::File(format!("{}: {e}", path.display())))?;
         files.sort();
         let (dicom, other): (Vec<_>, Vec<_>) = files.into_iter().partition(|f| looks_like_dicom(f));
-        if !other.is_empty() {
-            warnings.push(format!(
-                "skipped {} files that are not DICOM, e.g. {}",
-                other.len(),
-                other[0].display()
+        for f in &other {
+            skipped.push(format!(
+                "{}: skipped: not a DICOM file (no 128-byte preamble and \"DICM\")",
+                shown(f, path)
             ));
         }
         dicom
     } else {
         vec![path.to_path_buf()]
     };
-    if files.is_empty() {
-        return Err(SeriesError::Empty(path.to_path_buf()));
-    }
-    let per_file: Vec<Vec<Frame>> = files
+    let contents: Vec<FileContent> = files
         .par_iter()
-        .map(|f| read_frames(f))
+        .map(|f| read_file(f))
         .collect::<Result<_, _>>()
         .map_err(SeriesError::File)?;
     let mut groups: BTreeMap<String, Vec<Frame>> = BTreeMap::new();
-    for frame in per_file.into_iter().flatten() {
-        groups
-            .entry(frame.series_uid.clone())
-            .or_default()
-            .push(frame);
+    for (file, content) in files.iter().zip(contents) {
+        match content {
+            FileContent::Frames(frames) => {
+                for frame in frames {
+                    groups
+                        .entry(frame.series_uid.clone())
+                        .or_default()
+                        .push(frame);
+                }
+            }
+            FileContent::NotImage(why) => {
+                skipped.push(format!("{}: skipped: {why}", shown(file, path)));
+            }
+        }
+    }
+    if groups.is_empty() {
+        return Err(SeriesError::Empty {
+            dir: path.to_path_buf(),
+            skipped,
+        });
     }
     let frames = match series_uid {
         Some(uid) => groups
@@ -144,8 +192,15 @@ pub fn load_series(path: &Path, series_uid: Option<&str>) -> Result<LoadedSeries
         .map(|f| &f.file)
         .collect::<std::collections::BTreeSet<_>>()
         .len();
-    let (grid, voxels, mut more) = assemble(frames)?;
-    warnings.append(&mut more);
+    let (grid, voxels, more) = assemble(frames)?;
+    let mut warnings = Vec::new();
+    if skipped.len() > MAX_NAMED_SKIPS {
+        let n = skipped.len() - MAX_NAMED_SKIPS;
+        skipped.truncate(MAX_NAMED_SKIPS);
+        skipped.push(format!("and {n} more files skipped"));
+    }
+    warnings.append(&mut skipped);
+    warnings.extend(more);
     Ok(LoadedSeries {
         grid,
         voxels,

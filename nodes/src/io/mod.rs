@@ -11,6 +11,7 @@ mod write_mesh;
 mod write_registration;
 mod write_rig;
 mod write_table;
+mod write_volume;
 
 pub use disparity::{
     decode_pfm, decode_pgm, disparity_png, encode_pfm, finite_percentiles, read_disparity, viridis,
@@ -23,6 +24,9 @@ pub use write_mesh::{write_ply, write_stl};
 pub use write_registration::{itk_transform_text, read_itk_transform};
 pub use write_rig::rig_yaml;
 pub use write_table::{table_csv, table_markdown};
+pub use write_volume::{
+    NiftiVolume, VoxelBuf, Voxels, lps_to_ras, read_nifti, read_nrrd, write_nifti, write_nrrd,
+};
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;
@@ -41,6 +45,7 @@ pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.register(Arc::new(write_markers::WriteMarkersOp::new()))?;
     registry.register(Arc::new(write_mesh::WriteMeshOp::new()))?;
     registry.register(Arc::new(write_table::WriteTableOp::new()))?;
+    registry.register(Arc::new(write_volume::WriteVolumeOp::new()))?;
     registry.register(Arc::new(disparity::ReadDisparityOp::new()))?;
     registry.register(Arc::new(disparity::WriteDisparityOp::new()))?;
     Ok(())

@@ -118,7 +118,10 @@ mod tests {
             ));
         }
         for _ in 0..8_000 {
-            let (t, r): (f64, f64) = (rng.random_range(0.0..6.283), rng.random_range(0.0..60.0));
+            let (t, r): (f64, f64) = (
+                rng.random_range(0.0..std::f64::consts::TAU),
+                rng.random_range(0.0..60.0),
+            );
             let (x, y) = (r * t.cos(), r * t.sin());
             let h = (3600.0 - r * r).sqrt();
             pts.push(Point3::new(x, y, 600.0 + 0.1 * x - h));
@@ -126,7 +129,7 @@ mod tests {
         let (plane, held) = dominant_plane(&pts, 1.5, 200, 1).unwrap();
         let expect = Vector3::new(-0.1, 0.0, 1.0).normalize();
         assert!(plane.normal.dot(&expect).abs() > 0.9999, "{plane:?}");
-        assert!(held >= 20_000 && held < 20_500, "{held}");
+        assert!((20_000..20_500).contains(&held), "{held}");
         assert!((plane.distance(&Point3::new(0.0, 0.0, 600.0))).abs() < 0.1);
         assert!(dominant_plane(&pts[..2], 1.0, 10, 1).is_none());
     }

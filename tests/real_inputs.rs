@@ -223,3 +223,37 @@ fn a_pattern_of_three_numbers_fails_validation() {
         "{e}"
     );
 }
+
+#[test]
+fn a_photo_decodes_to_the_same_corners_in_every_binary() {
+    // The CLI binary and this test binary (another build profile's code
+    // paths) must see the same pixels: corners to the printed 6 decimals.
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/chessboard");
+    let t = tempfile::tempdir().unwrap();
+    let out = t.path().join("bench");
+    let o = fusegraph(
+        &[
+            "bench",
+            "chessboard",
+            data.to_str().unwrap(),
+            "--repeat",
+            "1",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        t.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let cli = std::fs::read_to_string(out.join("corners.csv")).unwrap();
+    let mut here = String::from("file,corner,x_px,y_px\n");
+    for name in ["calibration03.jpg", "calibration13.jpg"] {
+        let img = fusegraph_nodes::io::load_grey(&data.join(name)).unwrap();
+        let corners =
+            fusegraph_nodes::calib::find_chessboard(&img.levels, img.width, img.height, 9, 6)
+                .unwrap();
+        for (k, c) in corners.iter().enumerate() {
+            here.push_str(&format!("{name},{k},{:.6},{:.6}\n", c.x, c.y));
+        }
+    }
+    assert_eq!(cli, here);
+}

@@ -910,18 +910,48 @@ mod real_photo_tests {
     use super::*;
     use rayon::prelude::*;
 
-    /// A photo from tests/data/chessboard as grey 0..1.
+    fn data_dir() -> std::path::PathBuf {
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/data/chessboard")
+    }
+
+    /// A photo from tests/data/chessboard as grey 0..1, decoded as the op
+    /// decodes it.
     fn photo(name: &str) -> (Vec<f32>, usize, usize) {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../tests/data/chessboard")
-            .join(name);
-        let img = image::open(&path).unwrap().to_luma8();
-        let (w, h) = img.dimensions();
-        (
-            img.pixels().map(|p| p.0[0] as f32 / 255.0).collect(),
-            w as usize,
-            h as usize,
-        )
+        let img = crate::io::load_grey(&data_dir().join(name)).unwrap();
+        (img.levels, img.width, img.height)
+    }
+
+    #[test]
+    fn real_photos_give_opencvs_corners_in_opencvs_order() {
+        // OpenCV 5.0's findChessboardCorners + cornerSubPix (winSize 5 x 5,
+        // an 11 x 11 window) on the same files: tests/data/chessboard/README.md.
+        let text = std::fs::read_to_string(data_dir().join("opencv_corners.csv")).unwrap();
+        for name in ["calibration03.jpg", "calibration13.jpg"] {
+            let theirs: Vec<Point2<f64>> = text
+                .lines()
+                .filter(|l| l.starts_with(name))
+                .map(|l| {
+                    let f: Vec<f64> = l.split(',').skip(2).map(|v| v.parse().unwrap()).collect();
+                    Point2::new(f[0], f[1])
+                })
+                .collect();
+            assert_eq!(theirs.len(), 54);
+            let (grey, w, h) = photo(name);
+            let ours = find_chessboard(&grey, w, h, 9, 6).unwrap_or_else(|e| panic!("{name}: {e}"));
+            let d: Vec<f64> = ours
+                .iter()
+                .zip(&theirs)
+                .map(|(a, b)| (a - b).norm())
+                .collect();
+            let mean = d.iter().sum::<f64>() / d.len() as f64;
+            let worst = d.iter().copied().fold(0.0, f64::max);
+            // Same order (a reversed or turned order would be squares off),
+            // within JPEG noise of each other.
+            assert!(
+                mean < 0.1 && worst < 0.3,
+                "{name}: mean {mean} px, worst {worst} px"
+            );
+        }
     }
 
     /// The outcome as bits: corners' coordinates, or the refusal.

@@ -10,8 +10,35 @@
 //! symmetric patterns are refused.
 
 use super::subpixel::{refine_corner, window_for_square};
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Point2, Vector2};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
+use std::num::NonZero;
+
+/// The candidates by position: the `n` nearest to a point (a kiddo k-d tree).
+struct CandidateIndex {
+    tree: ImmutableKdTree<f64, 2>,
+}
+
+impl CandidateIndex {
+    fn new(cands: &[Candidate]) -> Option<Self> {
+        let raw: Vec<[f64; 2]> = cands.iter().map(|c| [c.p.x, c.p.y]).collect();
+        ImmutableKdTree::new_from_slice(&raw)
+            .ok()
+            .map(|tree| CandidateIndex { tree })
+    }
+
+    /// Up to `n` candidates nearest to `p`, nearest first: (distance px, index).
+    fn nearest(&self, p: Point2<f64>, n: usize) -> Vec<(f64, usize)> {
+        self.tree
+            .query(&[p.x, p.y])
+            .nearest_n::<SquaredEuclidean<f64>>(NonZero::new(n.max(1)).expect("n >= 1"))
+            .execute()
+            .iter()
+            .map(|r| (r.distance.sqrt(), r.item as usize))
+            .collect()
+    }
+}
 
 /// Smooths with a Gaussian of `sigma` px (separable, clamped borders). Each
 /// pass adds one tap to a whole row at a time, so the inner loop has no
@@ -175,28 +202,27 @@ fn along_an_edge(grey: &[f32], w: usize, h: usize, a: Point2<f64>, b: Point2<f64
 /// an edge from a quarter of a square away.
 fn grow(
     grey: (&[f32], usize, usize),
-    cands: &[Candidate],
+    (cands, index): (&[Candidate], &CandidateIndex),
     seed: usize,
     limit: (usize, usize),
+    refined: &mut HashMap<(usize, usize), Point2<f64>>,
 ) -> Option<BTreeMap<(i32, i32), Point2<f64>>> {
     let (img, w, h) = grey;
     let s = cands[seed].p;
-    let mut near: Vec<(f64, usize)> = cands
-        .iter()
-        .enumerate()
-        .filter(|(i, _)| *i != seed)
-        .map(|(i, c)| ((c.p - s).norm(), i))
-        .collect();
-    near.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut near: Vec<(f64, usize)> = index.nearest(s, 9);
+    near.retain(|&(_, i)| i != seed);
     near.truncate(8);
     // A first step must run along an edge and the lattice must go on beyond
     // it (or behind the seed): a spurious candidate a fraction of a square
     // from a corner passes the edge test but has no lattice behind it.
     let lattice_goes_on = |step: Vector2<f64>| {
         let tolerance = 0.2 * step.norm();
-        [s + 2.0 * step, s - step]
-            .iter()
-            .any(|q| cands.iter().any(|c| (c.p - q).norm() < tolerance))
+        [s + 2.0 * step, s - step].iter().any(|&q| {
+            index
+                .nearest(q, 1)
+                .first()
+                .is_some_and(|&(d, _)| d < tolerance)
+        })
     };
     near.retain(|&(_, i)| {
         along_an_edge(img, w, h, s, cands[i].p) && lattice_goes_on(cands[i].p - s)
@@ -212,15 +238,20 @@ fn grow(
     })?;
     let v = cands[n2].p - s;
     let first_step = u.norm().min(v.norm());
-    let take = |p: Point2<f64>, step: f64| -> Option<Point2<f64>> {
-        let q = refine_corner(img, w, h, (p.x, p.y), window_for_square(step))
-            .map(|(x, y)| Point2::new(x, y))
-            .unwrap_or(p);
+    // Seeds share their candidates: each is refined once per window size.
+    let mut take = |i: usize, step: f64| -> Option<Point2<f64>> {
+        let p = cands[i].p;
+        let half = window_for_square(step);
+        let q = *refined.entry((i, half)).or_insert_with(|| {
+            refine_corner(img, w, h, (p.x, p.y), half)
+                .map(|(x, y)| Point2::new(x, y))
+                .unwrap_or(p)
+        });
         looks_like_x(img, w, h, q.x, q.y, x_ring_radius(step)).then_some(q)
     };
     let mut grid: BTreeMap<(i32, i32), Point2<f64>> = BTreeMap::new();
     for (key, idx) in [((0, 0), seed), ((1, 0), n1), ((0, 1), n2)] {
-        grid.insert(key, take(cands[idx].p, first_step)?);
+        grid.insert(key, take(idx, first_step)?);
     }
     let mut frontier: Vec<(i32, i32)> = grid.keys().copied().collect();
     let max_cells = (limit.0 + 2) * (limit.1 + 2);
@@ -262,15 +293,10 @@ fn grow(
             };
             let predicted = here + step;
             let tolerance = 0.3 * step.norm();
-            let mut nearby: Vec<(f64, usize)> = cands
-                .iter()
-                .enumerate()
-                .map(|(i, c)| ((c.p - predicted).norm(), i))
-                .filter(|(d, _)| *d < tolerance)
-                .collect();
-            nearby.sort_by(|a, b| a.0.total_cmp(&b.0));
-            let taken = nearby.iter().take(4).find_map(|&(_, i)| {
-                let q = take(cands[i].p, step.norm())?;
+            let mut nearby = index.nearest(predicted, 4);
+            nearby.retain(|&(d, _)| d < tolerance);
+            let taken = nearby.iter().find_map(|&(_, i)| {
+                let q = take(i, step.norm())?;
                 let fresh = grid.values().all(|g| (g - q).norm() > 0.3 * step.norm());
                 (fresh && (q - predicted).norm() < tolerance).then_some(q)
             });
@@ -331,8 +357,16 @@ pub fn find_chessboard(
         ));
     }
     let mut best_size = 0;
+    let index = CandidateIndex::new(&cands).ok_or("no corner candidates")?;
+    let mut refined = HashMap::new();
     for seed in 0..cands.len().min(40) {
-        let Some(grid) = grow((grey, w, h), &cands, seed, (cols, rows)) else {
+        let Some(grid) = grow(
+            (grey, w, h),
+            (&cands, &index),
+            seed,
+            (cols, rows),
+            &mut refined,
+        ) else {
             continue;
         };
         best_size = best_size.max(grid.len());

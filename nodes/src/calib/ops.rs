@@ -362,15 +362,17 @@ impl Op for CalibrateCameraOp {
         &self.0
     }
     fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
-        let boards = boards_from_table(&*inputs.get::<Table>("corners")?)?;
-        let ids: Vec<u32> = boards.keys().copied().collect();
-        let (w, h) = boards.values().next().map(|b| b.1).unwrap_or((0, 0));
-        if let Some((v, (_, size))) = boards.iter().find(|(_, b)| b.1 != (w, h)) {
-            return Err(OpError::invalid(format!(
-                "the photos differ in size: view {} is {w} x {h} px, view {v} {} x {} px; one camera takes one size",
-                ids[0], size.0, size.1
-            )));
+        let mut boards = boards_from_table(&*inputs.get::<Table>("corners")?)?;
+        let sizes = boards.iter().map(|(v, b)| (*v, b.1)).collect();
+        let ((w, h), odd) = usual_size(&sizes);
+        for v in odd {
+            let (ow, oh) = sizes[&v];
+            ctx.note(format!(
+                "view {v}: the photo is {ow} x {oh} px, the others {w} x {h}: left out"
+            ));
+            boards.remove(&v);
         }
+        let ids: Vec<u32> = boards.keys().copied().collect();
         let views: Vec<BoardView> = boards.into_values().map(|b| b.0).collect();
         let c =
             calibrate_camera(&views, w, h, distortion_mask(params)?).map_err(OpError::invalid)?;

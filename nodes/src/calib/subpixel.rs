@@ -38,12 +38,17 @@ pub fn refine_corner(
             return None;
         }
         let (mut a, mut b, mut c, mut bx, mut by) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        // The Gaussian weight is separable: one exp per row and per column.
+        let weight = |d: f64| (-(d * d) / (2.0 * sigma2)).exp();
+        let wx: Vec<f64> = (cx - h..=cx + h).map(|x| weight(x as f64 - qx)).collect();
         for y in cy - h..=cy + h {
-            for x in cx - h..=cx + h {
+            let dy = y as f64 - qy;
+            let wy = weight(dy);
+            for (x, &wxx) in (cx - h..=cx + h).zip(&wx) {
                 let gx = 0.5 * (at(x + 1, y) - at(x - 1, y));
                 let gy = 0.5 * (at(x, y + 1) - at(x, y - 1));
-                let (dx, dy) = (x as f64 - qx, y as f64 - qy);
-                let w = (-(dx * dx + dy * dy) / (2.0 * sigma2)).exp();
+                let dx = x as f64 - qx;
+                let w = wxx * wy;
                 let (gxx, gxy, gyy) = (w * gx * gx, w * gx * gy, w * gy * gy);
                 a += gxx;
                 b += gxy;

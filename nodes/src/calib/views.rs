@@ -141,10 +141,40 @@ pub struct Pairing {
     pub dropped: Vec<String>,
 }
 
+/// The size most views have (ties: the lowest view's) and the views of other
+/// sizes, which a calibration leaves out: one camera takes one size, and a
+/// photo of another size is a cropped or resized copy.
+pub fn usual_size(sizes: &BTreeMap<u32, (usize, usize)>) -> ((usize, usize), Vec<u32>) {
+    let mut counts: Vec<((usize, usize), usize)> = Vec::new();
+    for s in sizes.values() {
+        match counts.iter_mut().find(|(c, _)| c == s) {
+            Some((_, n)) => *n += 1,
+            None => counts.push((*s, 1)),
+        }
+    }
+    // Stable: the first size seen (the lowest view's) wins a tie.
+    let usual = counts
+        .iter()
+        .fold(
+            None,
+            |best: Option<((usize, usize), usize)>, &(s, n)| match best {
+                Some((_, m)) if m >= n => best,
+                _ => Some((s, n)),
+            },
+        )
+        .map_or((0, 0), |(s, _)| s);
+    let odd = sizes
+        .iter()
+        .filter(|(_, s)| **s != usual)
+        .map(|(v, _)| *v)
+        .collect();
+    (usual, odd)
+}
+
 /// Pairs the left and right boards of each view number. Views with a board on
-/// one side only are left out and listed; a pair whose two photos differ in
-/// size, or photos of one camera that differ in size, are errors. Fewer than
-/// `min_pairs` pairs is an error listing every view's fate on both sides.
+/// one side only, or whose photos are not the cameras' usual size, are left
+/// out and listed; a pair whose two photos differ in size is an error. Fewer
+/// than `min_pairs` pairs is an error listing every view's fate on both sides.
 pub fn pair_views(left: &Side, right: &Side, min_pairs: usize) -> Result<Pairing, String> {
     let mut all: Vec<u32> = left.views().chain(right.views()).collect();
     all.sort_unstable();
@@ -158,24 +188,6 @@ pub fn pair_views(left: &Side, right: &Side, min_pairs: usize) -> Result<Pairing
                 .filter(|&s| s != (0, 0))
         })
     };
-    for (name, side) in [("left", left), ("right", right)] {
-        let mut sizes: BTreeMap<(usize, usize), Vec<u32>> = BTreeMap::new();
-        for &v in &all {
-            if let Some(s) = size_of(side, v) {
-                sizes.entry(s).or_default().push(v);
-            }
-        }
-        if sizes.len() > 1 {
-            let listed: Vec<String> = sizes
-                .iter()
-                .map(|((w, h), vs)| format!("{w} x {h} px: views {vs:?}"))
-                .collect();
-            return Err(format!(
-                "the {name} photos differ in size ({}); one camera takes one size",
-                listed.join("; ")
-            ));
-        }
-    }
     for &v in &all {
         if let (Some(l), Some(r)) = (size_of(left, v), size_of(right, v))
             && l != r
@@ -192,7 +204,21 @@ pub fn pair_views(left: &Side, right: &Side, min_pairs: usize) -> Result<Pairing
         sizes: [(0, 0); 2],
         dropped: Vec::new(),
     };
-    for &v in &all {
+    // A pair's photos have one size (checked above); a pair whose size is not
+    // its camera's (a cropped or resized copy) is left out.
+    let sizes: BTreeMap<u32, (usize, usize)> = all
+        .iter()
+        .filter_map(|&v| Some((v, size_of(left, v)?)))
+        .collect();
+    let (usual, odd) = usual_size(&sizes);
+    for &v in &odd {
+        let (w, h) = sizes[&v];
+        pairing.dropped.push(format!(
+            "view {v}: the photos are {w} x {h} px, the others {} x {}",
+            usual.0, usual.1
+        ));
+    }
+    for &v in all.iter().filter(|v| !odd.contains(v)) {
         match (left.boards.get(&v), right.boards.get(&v)) {
             (Some((l, ls)), Some((r, rs))) => {
                 pairing.views.push(v);
@@ -324,15 +350,27 @@ mod tests {
             e,
             "view 1: the left photo is 640 x 480 px but the right one 800 x 600 px"
         );
-        let mut mixed = side(&[1, 2], &[], (640, 480));
-        mixed.photos.as_mut().unwrap().insert(
-            3,
-            PhotoRecord {
-                found: false,
-                size: (320, 240),
-            },
+    }
+
+    #[test]
+    fn a_pair_of_another_size_than_the_cameras_is_left_out() {
+        // A real set (chessboard_mono) holds one 1281 x 721 photo among
+        // 1280 x 720 ones.
+        let mut left = side(&[1, 2, 4], &[], (640, 480));
+        let mut right = side(&[1, 2, 4], &[], (640, 480));
+        for s in [&mut left, &mut right] {
+            let view = s.boards[&1].0.clone();
+            s.boards.insert(3, (view, (641, 481)));
+        }
+        let p = pair_views(&left, &right, 3).unwrap();
+        assert_eq!(p.views, [1, 2, 4]);
+        assert_eq!(
+            p.dropped,
+            ["view 3: the photos are 641 x 481 px, the others 640 x 480"]
         );
-        let e = pair_views(&mixed, &side(&[1, 2], &[], (640, 480)), 2).unwrap_err();
-        assert!(e.starts_with("the left photos differ in size"), "{e}");
+        let sizes = BTreeMap::from([(1, (5, 5)), (2, (6, 6)), (3, (6, 6))]);
+        assert_eq!(usual_size(&sizes), ((6, 6), vec![1]));
+        let tie = BTreeMap::from([(1, (5, 5)), (2, (6, 6))]);
+        assert_eq!(usual_size(&tie), ((5, 5), vec![2]));
     }
 }

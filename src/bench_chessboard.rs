@@ -11,14 +11,14 @@ use std::time::Instant;
 /// One image's outcome: the corners or the refusal, and the best times (ms).
 struct Outcome {
     file: PathBuf,
-    result: Result<Vec<nalgebra::Point2<f64>>, String>,
+    result: Result<Vec<nalgebra::Point2<f64>>, fusegraph_nodes::calib::Refusal>,
     decode_ms: f64,
     detect_ms: f64,
 }
 
 fn detect_one(file: &Path, cols: usize, rows: usize, repeat: usize) -> anyhow::Result<Outcome> {
     let (mut decode_ms, mut detect_ms) = (f64::MAX, f64::MAX);
-    let mut result = Err(String::new());
+    let mut result = Err(fusegraph_nodes::calib::Refusal::ImageTooSmall);
     for _ in 0..repeat.max(1) {
         let t = Instant::now();
         let img = fusegraph_nodes::io::load_grey(file)?;

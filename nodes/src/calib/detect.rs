@@ -331,6 +331,114 @@ fn patch(grey: &[f32], w: usize, h: usize, p: Point2<f64>) -> Option<f32> {
     Some(sum / 9.0)
 }
 
+/// Why a board was not found. [`Refusal::code`] gives each kind a stable
+/// number for tables (`calib.find_chessboard`'s `views`).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Refusal {
+    /// The pattern's counts cannot be oriented (both odd or both even) or are
+    /// below 2.
+    AmbiguousPattern {
+        /// Inner corners per row.
+        cols: usize,
+        /// Inner corners per column.
+        rows: usize,
+    },
+    /// The image is under 16 px across or its buffer does not match its size.
+    ImageTooSmall,
+    /// Fewer corner candidates than the board has corners.
+    FewCandidates {
+        /// Candidates found.
+        found: usize,
+        /// Inner corners of the board.
+        needed: usize,
+    },
+    /// No grid grown from any seed held exactly one complete board.
+    NoCompleteGrid {
+        /// Inner corners per row.
+        cols: usize,
+        /// Inner corners per column.
+        rows: usize,
+        /// Corners of the largest grid grown.
+        largest: usize,
+    },
+    /// A corner's sub-pixel refinement failed (at the border, or blurred).
+    CornerDoesNotRefine {
+        /// Where, px.
+        at: Point2<f64>,
+    },
+    /// A corner stays off its row or column after re-locating it.
+    CornerOffLine {
+        /// Its index in the board's order.
+        corner: usize,
+        /// Where, px.
+        at: Point2<f64>,
+    },
+}
+
+impl Refusal {
+    /// A stable number for the kind of refusal (1 is kept for a photo that
+    /// could not be read, 0 for a board found).
+    pub fn code(&self) -> u8 {
+        match self {
+            Refusal::AmbiguousPattern { .. } => 2,
+            Refusal::ImageTooSmall => 3,
+            Refusal::FewCandidates { .. } => 4,
+            Refusal::NoCompleteGrid { .. } => 5,
+            Refusal::CornerDoesNotRefine { .. } => 6,
+            Refusal::CornerOffLine { .. } => 7,
+        }
+    }
+
+    /// A short phrase for the refusal of code `code` (see [`Refusal::code`]).
+    pub fn describe_code(code: u8) -> &'static str {
+        match code {
+            0 => "found",
+            1 => "photo unreadable",
+            2 => "pattern ambiguous",
+            3 => "image too small",
+            4 => "too few corner candidates",
+            5 => "no complete grid",
+            6 => "a corner does not refine",
+            7 => "a corner off its row or column",
+            _ => "refused",
+        }
+    }
+}
+
+impl std::fmt::Display for Refusal {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Refusal::AmbiguousPattern { cols, rows } => write!(
+                f,
+                "pattern {cols} x {rows}: use one odd and one even count of inner corners, or the board's orientation is ambiguous"
+            ),
+            Refusal::ImageTooSmall => write!(f, "image too small"),
+            Refusal::FewCandidates { found, needed } => write!(
+                f,
+                "{found} corner candidates, fewer than the {needed} inner corners"
+            ),
+            Refusal::NoCompleteGrid {
+                cols,
+                rows,
+                largest,
+            } => write!(
+                f,
+                "no complete {cols} x {rows} grid (largest grid grown: {largest} corners)"
+            ),
+            Refusal::CornerDoesNotRefine { at } => write!(
+                f,
+                "corner near ({:.1}, {:.1}) does not refine (too close to the border or blurred)",
+                at.x, at.y
+            ),
+            Refusal::CornerOffLine { corner, at } => write!(
+                f,
+                "corner {corner} at ({:.1}, {:.1}) does not line up with its neighbours",
+                at.x, at.y
+            ),
+        }
+    }
+}
+
 /// Finds the whole `cols x rows` board (inner corners) in a grey image (0..1,
 /// row-major) and returns its corners to sub-pixel accuracy, or why not.
 pub fn find_chessboard(
@@ -339,25 +447,27 @@ pub fn find_chessboard(
     h: usize,
     cols: usize,
     rows: usize,
-) -> Result<Vec<Point2<f64>>, String> {
+) -> Result<Vec<Point2<f64>>, Refusal> {
     if cols < 2 || rows < 2 || (cols % 2) == (rows % 2) {
-        return Err(format!(
-            "pattern {cols} x {rows}: use one odd and one even count of inner corners, or the board's orientation is ambiguous"
-        ));
+        return Err(Refusal::AmbiguousPattern { cols, rows });
     }
     if w < 16 || h < 16 || grey.len() != w * h {
-        return Err("image too small".into());
+        return Err(Refusal::ImageTooSmall);
     }
     let cands = candidates(grey, w, h);
     if cands.len() < cols * rows {
-        return Err(format!(
-            "{} corner candidates, fewer than the {} inner corners",
-            cands.len(),
-            cols * rows
-        ));
+        return Err(Refusal::FewCandidates {
+            found: cands.len(),
+            needed: cols * rows,
+        });
     }
     let mut best_size = 0;
-    let index = CandidateIndex::new(&cands).ok_or("no corner candidates")?;
+    let no_grid = |largest| Refusal::NoCompleteGrid {
+        cols,
+        rows,
+        largest,
+    };
+    let index = CandidateIndex::new(&cands).ok_or(no_grid(0))?;
     let mut refined = HashMap::new();
     for seed in 0..cands.len().min(40) {
         let Some(grid) = grow(
@@ -390,9 +500,7 @@ pub fn find_chessboard(
             return refine_all(grey, w, h, ordered, cols);
         }
     }
-    Err(format!(
-        "no complete {cols} x {rows} grid (largest grid grown: {best_size} corners)"
-    ))
+    Err(no_grid(best_size))
 }
 
 /// Origins (and whether transposed) of every fully populated `cols x rows`
@@ -484,7 +592,7 @@ fn refine_all(
     h: usize,
     corners: Vec<Point2<f64>>,
     cols: usize,
-) -> Result<Vec<Point2<f64>>, String> {
+) -> Result<Vec<Point2<f64>>, Refusal> {
     let spacing = corners
         .iter()
         .enumerate()
@@ -495,7 +603,7 @@ fn refine_all(
     let refine = |p: &Point2<f64>| {
         refine_corner(grey, w, h, (p.x, p.y), half)
             .map(|(x, y)| Point2::new(x, y))
-            .ok_or_else(|| format!("corner near ({:.1}, {:.1}) does not refine (too close to the border or blurred)", p.x, p.y))
+            .ok_or(Refusal::CornerDoesNotRefine { at: *p })
     };
     // A candidate that does not refine stays where it is for now: the check
     // below finds it out of line and re-locates it.
@@ -509,17 +617,20 @@ fn refine_all(
             return Ok(refined);
         }
         for k in bad {
-            let guess = predict_from_neighbours(&refined, cols, k)
-                .ok_or("a corner has no neighbours to check it by")?;
+            let guess =
+                predict_from_neighbours(&refined, cols, k).ok_or(Refusal::CornerOffLine {
+                    corner: k,
+                    at: refined[k],
+                })?;
             refined[k] = refine(&guess)?;
         }
     }
     match inconsistent_corners(&refined, cols).first() {
         None => Ok(refined),
-        Some(&k) => Err(format!(
-            "corner {k} at ({:.1}, {:.1}) does not line up with its neighbours",
-            refined[k].x, refined[k].y
-        )),
+        Some(&k) => Err(Refusal::CornerOffLine {
+            corner: k,
+            at: refined[k],
+        }),
     }
 }
 
@@ -787,6 +898,7 @@ mod tests {
         assert!(
             find_chessboard(&img, 640, 480, 8, 6)
                 .unwrap_err()
+                .to_string()
                 .contains("one odd and one even")
         );
         assert!(
@@ -989,7 +1101,7 @@ mod real_photo_tests {
     }
 
     /// The outcome as bits: corners' coordinates, or the refusal.
-    fn outcome(grey: &[f32], w: usize, h: usize) -> Result<Vec<(u64, u64)>, String> {
+    fn outcome(grey: &[f32], w: usize, h: usize) -> Result<Vec<(u64, u64)>, Refusal> {
         find_chessboard(grey, w, h, 9, 6)
             .map(|c| c.iter().map(|p| (p.x.to_bits(), p.y.to_bits())).collect())
     }

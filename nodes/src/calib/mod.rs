@@ -16,7 +16,7 @@ mod zhang;
 pub use camera_calibration::{
     BoardView, CameraCalibration, DISTORTION_NAMES, calibrate_camera, rotation_error_deg,
 };
-pub use detect::find_chessboard;
+pub use detect::{Refusal, find_chessboard};
 pub use homography::homography;
 pub use lm::{LeastSquares, LmReport, levenberg_marquardt};
 pub use rectify::{StereoRectification, rectify, remap};

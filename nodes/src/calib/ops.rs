@@ -23,14 +23,14 @@ const CORNER_COLUMNS: [&str; 8] = [
     "height_px",
 ];
 
-const VIEW_COLUMNS: [&str; 4] = ["view", "found", "width_px", "height_px"];
+const VIEW_COLUMNS: [&str; 5] = ["view", "found", "width_px", "height_px", "refusal"];
 
 /// Boards by view number, each with its image's width and height (px).
 type Boards = BTreeMap<u32, (BoardView, (usize, usize))>;
 
-/// A photo's outcome: its corners and image size, or why not (and the image
-/// size when it could be read).
-type Detection = Result<(Vec<Point2<f64>>, usize, usize), (String, (usize, usize))>;
+/// A photo's outcome: its corners and image size, or why not (the reason,
+/// the image size when it could be read, and the refusal's code).
+type Detection = Result<(Vec<Point2<f64>>, usize, usize), (String, (usize, usize), u8)>;
 
 /// Boards by view number, from a corners table.
 pub(crate) fn boards_from_table(t: &Table) -> Result<Boards, OpError> {
@@ -71,7 +71,7 @@ fn photos_from_table(t: &Table) -> Result<BTreeMap<u32, PhotoRecord>, OpError> {
         .map(|r| {
             let row = t.row(r);
             let record = PhotoRecord {
-                found: row[1] != 0.0,
+                refusal: row[4] as u8,
                 size: (row[2] as usize, row[3] as usize),
             };
             (row[0] as u32, record)
@@ -154,7 +154,7 @@ impl FindChessboardOp {
         FindChessboardOp(
             OpSpec::new(
                 "calib.find_chessboard",
-                4,
+                5,
                 "Chessboard inner corners, sub-pixel, in every image matching a glob",
             )
             .optional_input(
@@ -195,7 +195,7 @@ impl FindChessboardOp {
             .output(
                 "views",
                 ValueType::Table,
-                "Every photo: view, found (1 or 0), width_px, height_px (0 if unreadable)",
+                "Every photo: view, found (1 or 0), width_px, height_px (0 if unreadable), refusal (calib::Refusal code; 0 found, 1 unreadable)",
             ),
         )
     }
@@ -238,8 +238,14 @@ impl Op for FindChessboardOp {
             let data: Vec<f64> = records
                 .iter()
                 .flat_map(|(v, r)| {
-                    let found = if r.found { 1.0 } else { 0.0 };
-                    [*v as f64, found, r.size.0 as f64, r.size.1 as f64]
+                    let found = if r.found() { 1.0 } else { 0.0 };
+                    [
+                        *v as f64,
+                        found,
+                        r.size.0 as f64,
+                        r.size.1 as f64,
+                        r.refusal as f64,
+                    ]
                 })
                 .collect();
             Table::new(VIEW_COLUMNS.iter().map(|s| s.to_string()).collect(), data)
@@ -247,11 +253,11 @@ impl Op for FindChessboardOp {
         };
         if let Some(img) = inputs.optional::<Image>("image")? {
             let corners = find_chessboard(&grey_of(&img), img.width, img.height, cols, rows)
-                .map_err(OpError::invalid)?;
+                .map_err(|r| OpError::invalid(r.to_string()))?;
             ctx.metric("detected", 1.0);
             ctx.metric("total", 1.0);
             let record = PhotoRecord {
-                found: true,
+                refusal: 0,
                 size: (img.width, img.height),
             };
             return Ok(Outputs::new()
@@ -282,10 +288,10 @@ impl Op for FindChessboardOp {
         let results: Vec<Detection> = files
             .par_iter()
             .map(|(_, f)| {
-                let img = load_grey(f).map_err(|e| (e.to_string(), (0, 0)))?;
+                let img = load_grey(f).map_err(|e| (e.to_string(), (0, 0), 1))?;
                 find_chessboard(&img.levels, img.width, img.height, cols, rows)
                     .map(|c| (c, img.width, img.height))
-                    .map_err(|why| (why, (img.width, img.height)))
+                    .map_err(|why| (why.to_string(), (img.width, img.height), why.code()))
             })
             .collect();
         let mut found = Vec::new();
@@ -297,20 +303,20 @@ impl Op for FindChessboardOp {
                     records.push((
                         *view,
                         PhotoRecord {
-                            found: true,
+                            refusal: 0,
                             size: (w, h),
                         },
                     ));
                     found.push((*view, corners, w, h));
                 }
-                Err((why, size)) => {
-                    let what = if size == (0, 0) {
+                Err((why, size, refusal)) => {
+                    let what = if refusal == 1 {
                         "unreadable"
                     } else {
                         "refused"
                     };
                     ctx.note(format!("{name}: {what}: {why}"));
-                    records.push((*view, PhotoRecord { found: false, size }));
+                    records.push((*view, PhotoRecord { refusal, size }));
                 }
             }
         }

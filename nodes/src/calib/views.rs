@@ -7,7 +7,7 @@ use nalgebra::Point2;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use super::BoardView;
+use super::{BoardView, Refusal};
 
 /// File extensions read as images (case-insensitive).
 pub const IMAGE_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
@@ -90,10 +90,18 @@ pub fn numbered_photos(dir: &Path, glob: &glob::Pattern) -> Result<NumberedPhoto
 /// What one camera's detection made of one photo.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PhotoRecord {
-    /// Whether the board was found.
-    pub found: bool,
+    /// 0 when the board was found, 1 when the photo could not be read, else
+    /// the [`Refusal::code`] of why the board was refused.
+    pub refusal: u8,
     /// Image width and height, px (0 x 0 when it could not be read).
     pub size: (usize, usize),
+}
+
+impl PhotoRecord {
+    /// Whether the board was found.
+    pub fn found(&self) -> bool {
+        self.refusal == 0
+    }
 }
 
 /// One side of a stereo calibration: its boards by view number and, when
@@ -108,15 +116,15 @@ pub struct Side {
 
 impl Side {
     /// What became of view `v` on this side, in words.
-    fn fate(&self, v: u32) -> &'static str {
+    fn fate(&self, v: u32) -> String {
         if self.boards.contains_key(&v) {
-            return "board found";
+            return "board found".into();
         }
         match self.photos.as_ref().map(|p| p.get(&v)) {
-            Some(Some(r)) if r.size == (0, 0) => "photo unreadable",
-            Some(Some(_)) => "board refused",
-            Some(None) => "no photo",
-            None => "no board (refused or no photo)",
+            Some(Some(r)) if r.refusal == 1 => "photo unreadable".into(),
+            Some(Some(r)) => format!("board refused ({})", Refusal::describe_code(r.refusal)),
+            Some(None) => "no photo".into(),
+            None => "no board (refused or no photo)".into(),
         }
     }
 
@@ -306,10 +314,10 @@ mod tests {
         let view = board_view(&[Point2::new(1.0, 2.0)], 1, 25.0);
         let mut photos: BTreeMap<u32, PhotoRecord> = BTreeMap::new();
         for &v in found {
-            photos.insert(v, PhotoRecord { found: true, size });
+            photos.insert(v, PhotoRecord { refusal: 0, size });
         }
         for &v in refused {
-            photos.insert(v, PhotoRecord { found: false, size });
+            photos.insert(v, PhotoRecord { refusal: 5, size });
         }
         Side {
             boards: found.iter().map(|&v| (v, (view.clone(), size))).collect(),
@@ -328,7 +336,7 @@ mod tests {
         assert_eq!(
             p.dropped,
             [
-                "view 2: left board found, right board refused",
+                "view 2: left board found, right board refused (no complete grid)",
                 "view 4: left board found, right no photo",
                 "view 9: left board found, right no photo",
             ]

@@ -1,20 +1,11 @@
 //! The `fusegraph` command line, end to end: run, cache reuse, overrides,
 //! validation exit codes, failures, concurrent processes, listing and dot.
 
+mod common;
+
+use common::{fusegraph, stderr};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn fusegraph(args: &[&str], cwd: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_fusegraph"))
-        .args(args)
-        .current_dir(cwd)
-        .output()
-        .expect("fusegraph runs")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
+use std::process::Command;
 
 fn demo_graph() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("graphs/demo.toml")

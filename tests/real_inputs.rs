@@ -3,21 +3,11 @@
 //! pairs, an absurd calibration, malformed list parameters; warnings in
 //! report.json and the CLI summary, on a cached re-run too.
 
+mod common;
+
+use common::{fusegraph, stderr};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 use std::sync::OnceLock;
-
-fn fusegraph(args: &[&str], cwd: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_fusegraph"))
-        .args(args)
-        .current_dir(cwd)
-        .output()
-        .expect("fusegraph runs")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
 
 /// The small phantom's calibration photos, written once for this file's tests.
 fn phantom_calib() -> &'static Path {
@@ -67,6 +57,14 @@ in.right_views = "right_corners.views"
 fn report(dir: &Path) -> serde_json::Value {
     let text = std::fs::read_to_string(dir.join("out/pairs/report.json")).unwrap();
     serde_json::from_str(&text).unwrap()
+}
+
+/// The error of the stereo node in the last run.
+fn stereo_error(dir: &Path) -> String {
+    report(dir)["nodes"]["stereo"]["error"]
+        .as_str()
+        .expect("the stereo node failed")
+        .to_string()
 }
 
 fn notes(r: &serde_json::Value, node: &str) -> Vec<String> {
@@ -150,8 +148,7 @@ fn a_pair_of_different_sizes_is_an_error_naming_the_view() {
     small.save(&right).unwrap();
     let o = fusegraph(&["run", "stereo.toml"], t.path());
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
-    let r = report(t.path());
-    let err = r["nodes"]["stereo"]["error"].as_str().unwrap();
+    let err = stereo_error(t.path());
     assert_eq!(
         err,
         "view 5: the left photo is 800 x 600 px but the right one 400 x 300 px"
@@ -196,10 +193,7 @@ fn an_absurd_calibration_fails_instead_of_passing_a_garbage_rig_on() {
     let t = photo_folder(&as_refs(&files));
     let o = fusegraph(&["run", "stereo.toml"], t.path());
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
-    let err = report(t.path())["nodes"]["stereo"]["error"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let err = stereo_error(t.path());
     assert!(err.contains("is above max_rms_px = 2 px"), "{err}");
     assert!(err.contains("worst: view "), "{err}");
 }

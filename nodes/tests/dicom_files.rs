@@ -197,6 +197,46 @@ fn bad_inputs_get_clear_errors() {
 
 /// An enhanced multi-frame MR file: geometry in the functional groups, frames
 /// stored in reverse order along the normal.
+/// Puts the modality and the Image Pixel module of a monochrome object:
+/// `frames` frames of `rows x cols` unsigned `bits`-bit samples.
+fn put_pixel_module(
+    obj: &mut dicom_object::InMemDicomObject,
+    modality: &str,
+    (rows, cols): (u16, u16),
+    frames: usize,
+    bits: u16,
+) {
+    use dicom_core::value::PrimitiveValue;
+    use dicom_core::{DataElement, VR};
+    use dicom_dictionary_std::tags;
+    obj.put(DataElement::new(
+        tags::MODALITY,
+        VR::CS,
+        PrimitiveValue::from(modality),
+    ));
+    obj.put(DataElement::new(
+        tags::NUMBER_OF_FRAMES,
+        VR::IS,
+        PrimitiveValue::from(frames.to_string()),
+    ));
+    for (tag, v) in [
+        (tags::ROWS, rows),
+        (tags::COLUMNS, cols),
+        (tags::SAMPLES_PER_PIXEL, 1),
+        (tags::BITS_ALLOCATED, bits),
+        (tags::BITS_STORED, bits),
+        (tags::HIGH_BIT, bits - 1),
+        (tags::PIXEL_REPRESENTATION, 0),
+    ] {
+        obj.put(DataElement::new(tag, VR::US, PrimitiveValue::from(v)));
+    }
+    obj.put(DataElement::new(
+        tags::PHOTOMETRIC_INTERPRETATION,
+        VR::CS,
+        PrimitiveValue::from("MONOCHROME2"),
+    ));
+}
+
 fn write_multiframe(path: &std::path::Path) {
     use dicom_core::value::{C, DataSetSequence, PrimitiveValue};
     use dicom_core::{DataElement, VR};
@@ -225,32 +265,7 @@ fn write_multiframe(path: &std::path::Path) {
         VR::UI,
         PrimitiveValue::from("2.25.99"),
     ));
-    obj.put(DataElement::new(
-        tags::MODALITY,
-        VR::CS,
-        PrimitiveValue::from("MR"),
-    ));
-    obj.put(DataElement::new(
-        tags::NUMBER_OF_FRAMES,
-        VR::IS,
-        PrimitiveValue::from("3"),
-    ));
-    for (tag, v) in [
-        (tags::ROWS, rows),
-        (tags::COLUMNS, cols),
-        (tags::SAMPLES_PER_PIXEL, 1),
-        (tags::BITS_ALLOCATED, 16),
-        (tags::BITS_STORED, 16),
-        (tags::HIGH_BIT, 15),
-        (tags::PIXEL_REPRESENTATION, 0),
-    ] {
-        obj.put(DataElement::new(tag, VR::US, PrimitiveValue::from(v)));
-    }
-    obj.put(DataElement::new(
-        tags::PHOTOMETRIC_INTERPRETATION,
-        VR::CS,
-        PrimitiveValue::from("MONOCHROME2"),
-    ));
+    put_pixel_module(&mut obj, "MR", (rows, cols), frames, 16);
     let shared = InMemDicomObject::from_element_iter([
         seq(
             tags::PLANE_ORIENTATION_SEQUENCE,
@@ -490,32 +505,7 @@ fn write_rt_dose(path: &std::path::Path, offsets: &[f64], iop: [f64; 6]) {
         VR::UI,
         PrimitiveValue::from("2.25.5151"),
     ));
-    obj.put(DataElement::new(
-        tags::MODALITY,
-        VR::CS,
-        PrimitiveValue::from("RTDOSE"),
-    ));
-    obj.put(DataElement::new(
-        tags::NUMBER_OF_FRAMES,
-        VR::IS,
-        PrimitiveValue::from(offsets.len().to_string()),
-    ));
-    for (tag, v) in [
-        (tags::ROWS, rows),
-        (tags::COLUMNS, cols),
-        (tags::SAMPLES_PER_PIXEL, 1),
-        (tags::BITS_ALLOCATED, 32),
-        (tags::BITS_STORED, 32),
-        (tags::HIGH_BIT, 31),
-        (tags::PIXEL_REPRESENTATION, 0),
-    ] {
-        obj.put(DataElement::new(tag, VR::US, PrimitiveValue::from(v)));
-    }
-    obj.put(DataElement::new(
-        tags::PHOTOMETRIC_INTERPRETATION,
-        VR::CS,
-        PrimitiveValue::from("MONOCHROME2"),
-    ));
+    put_pixel_module(&mut obj, "RTDOSE", (rows, cols), offsets.len(), 32);
     obj.put(DataElement::new(
         tags::IMAGE_POSITION_PATIENT,
         VR::DS,

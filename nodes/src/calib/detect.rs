@@ -804,63 +804,29 @@ fn predict_from_neighbours(corners: &[Point2<f64>], cols: usize, k: usize) -> Op
 mod tests {
     use super::*;
 
-    /// A 9 x 6 board (squares `s` px, square (-1, -1) dark, white margin) drawn
-    /// with 4 x 4 supersampling after rotating by `angle` about `centre`, on a
-    /// mid-grey background; returns the image and the true corners in order.
+    /// A 9 x 6 board (squares `s` px, square (-1, -1) dark, white margin)
+    /// rotated by `angle` about `centre`, drawn by the lens tests' renderer,
+    /// with `crop_right` columns greyed out; the image and the true corners.
     fn board_image(
         angle: f64,
         s: f64,
         centre: (f64, f64),
         crop_right: usize,
     ) -> (Vec<f32>, Vec<Point2<f64>>) {
-        let (w, h) = (640usize, 480usize);
         let (sin, cos) = angle.sin_cos();
         let origin = (
             centre.0 - (4.0 * s * cos - 2.5 * s * sin),
             centre.1 - (4.0 * s * sin + 2.5 * s * cos),
         );
-        let to_image = |x: f64, y: f64| {
-            Point2::new(origin.0 + x * cos - y * sin, origin.1 + x * sin + y * cos)
+        let to_board = move |x: f64, y: f64| {
+            let (ix, iy) = (x - origin.0, y - origin.1);
+            ((ix * cos + iy * sin) / s, (-ix * sin + iy * cos) / s)
         };
-        let mut img = vec![0.5f32; w * h];
-        for py in 0..h {
-            for px in 0..w {
-                let mut acc = 0.0;
-                for sy in 0..4 {
-                    for sx in 0..4 {
-                        let (ix, iy) = (
-                            px as f64 + (sx as f64 + 0.5) / 4.0 - 0.5 - origin.0,
-                            py as f64 + (sy as f64 + 0.5) / 4.0 - 0.5 - origin.1,
-                        );
-                        let (bx, by) = (ix * cos + iy * sin, -ix * sin + iy * cos);
-                        let (qx, qy) = ((bx / s).floor() as i64, (by / s).floor() as i64);
-                        acc += if bx < -1.6 * s || by < -1.6 * s || bx > 9.6 * s || by > 6.6 * s {
-                            0.5
-                        } else if (-1..=8).contains(&qx)
-                            && (-1..=5).contains(&qy)
-                            && (qx + qy).rem_euclid(2) == 0
-                        {
-                            0.08
-                        } else {
-                            0.85
-                        };
-                    }
-                }
-                img[py * w + px] = acc / 16.0;
-            }
+        let (mut img, corners) = super::lens_and_perspective_tests::render(&to_board);
+        let w = 640;
+        for row in img.chunks_exact_mut(w) {
+            row[w - crop_right..].fill(0.5);
         }
-        if crop_right > 0 {
-            for y in 0..h {
-                for x in w - crop_right..w {
-                    img[y * w + x] = 0.5;
-                }
-            }
-        }
-        let img = gaussian(&img, w, h, 0.6);
-        let corners = (0..6)
-            .flat_map(|r| (0..9).map(move |c| (c, r)))
-            .map(|(c, r)| to_image(c as f64 * s, r as f64 * s))
-            .collect();
         (img, corners)
     }
 
@@ -918,7 +884,9 @@ mod lens_and_perspective_tests {
     /// corners, found by inverting `to_board` with Newton's method. (4 x 4
     /// samples place an edge along a pixel row only to 1/8 px, which moves a
     /// corner there by up to 0.2 px.)
-    fn render(to_board: &dyn Fn(f64, f64) -> (f64, f64)) -> (Vec<f32>, Vec<Point2<f64>>) {
+    pub(super) fn render(
+        to_board: &dyn Fn(f64, f64) -> (f64, f64),
+    ) -> (Vec<f32>, Vec<Point2<f64>>) {
         let (w, h) = (640usize, 480usize);
         let mut img = vec![0.5f32; w * h];
         for py in 0..h {

@@ -14,24 +14,24 @@ pub enum BenchCommand {
     /// (empty disk cache), fully cached, and without a disk cache.
     Scheduler {
         /// Number of nodes.
-        #[arg(long, default_value_t = 1000)]
+        #[arg(long, default_value_t = 1000, value_parser = count::<1_000_000>)]
         nodes: usize,
         /// Worker threads (0 = one per core).
         #[arg(long, short = 'j', default_value_t = 0)]
         jobs: usize,
         /// Repetitions; the best time of each phase is reported.
-        #[arg(long, default_value_t = 5)]
+        #[arg(long, default_value_t = 5, value_parser = count::<1000>)]
         repeat: usize,
     },
     /// ICP time per iteration, point-to-point and point-to-plane, on two clouds
     /// of a bumpy ellipsoid (target offset by 3 deg and 4 mm); also writes them
     /// as PLY for ../shared/bench/peers.py icp.
     Icp {
-        /// Points per cloud.
-        #[arg(long, default_value_t = 100_000)]
+        /// Points per cloud (up to 5 million, about 2 GB with the k-d tree).
+        #[arg(long, default_value_t = 100_000, value_parser = count::<5_000_000>)]
         points: usize,
         /// Iterations.
-        #[arg(long, default_value_t = 30)]
+        #[arg(long, default_value_t = 30, value_parser = count::<10_000>)]
         iterations: usize,
         /// Folder for source.ply and target.ply [default: a temporary one].
         #[arg(long)]
@@ -40,14 +40,14 @@ pub enum BenchCommand {
     /// Marching cubes throughput on an N^3 volume holding a wavy sphere, or on a
     /// DICOM series at its mean value (as ../shared/bench/peers.py mc does).
     MarchingCubes {
-        /// Voxels along each axis.
-        #[arg(long, default_value_t = 256)]
+        /// Voxels along each axis (up to 800: 800^3 f32 voxels are 2 GB).
+        #[arg(long, default_value_t = 256, value_parser = count::<800>)]
         size: usize,
         /// A DICOM series (folder) to contour instead.
         #[arg(long)]
         dicom: Option<std::path::PathBuf>,
         /// Repetitions; the best time is reported.
-        #[arg(long, default_value_t = 3)]
+        #[arg(long, default_value_t = 3, value_parser = count::<1000>)]
         repeat: usize,
     },
     /// Semi-global matching with stereo.sgm's defaults on rectified pairs:
@@ -76,7 +76,7 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 64)]
         disparities: usize,
         /// Repetitions; the best time is reported.
-        #[arg(long, default_value_t = 5)]
+        #[arg(long, default_value_t = 5, value_parser = count::<1000>)]
         repeat: usize,
         /// Folder for the pairs given to the peers [default: a temporary one].
         #[arg(long)]
@@ -98,12 +98,23 @@ pub enum BenchCommand {
         #[arg(long, default_value = "9x6")]
         pattern: String,
         /// Repetitions; the best time is reported.
-        #[arg(long, default_value_t = 3)]
+        #[arg(long, default_value_t = 3, value_parser = count::<1000>)]
         repeat: usize,
         /// Folder for corners.csv.
         #[arg(long)]
         out: Option<std::path::PathBuf>,
     },
+}
+
+/// A count from 1 to `MAX`: a value that sizes an allocation or a loop, kept
+/// within what a run on this kind of machine can hold.
+fn count<const MAX: usize>(s: &str) -> Result<usize, String> {
+    let n: usize = s.trim().parse().map_err(|e| format!("{s:?}: {e}"))?;
+    if (1..=MAX).contains(&n) {
+        Ok(n)
+    } else {
+        Err(format!("{n} is not within 1 to {MAX}"))
+    }
 }
 
 /// A graph of `n` trivial nodes: 10 constants, then binary nodes each reading two

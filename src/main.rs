@@ -104,6 +104,7 @@ struct Edit {
 }
 
 fn main() -> ExitCode {
+    quiet_on_broken_pipe();
     let cli = Cli::parse();
     init_logging(cli.verbose);
     let registry = fusegraph_nodes::builtin_registry();
@@ -121,6 +122,18 @@ fn main() -> ExitCode {
     }
 }
 
+/// Ends the process quietly when its output pipe closes (`fusegraph nodes
+/// --json | head`), as other command-line tools do, instead of panicking in
+/// `println!` with exit code 101. Rust ignores SIGPIPE by default.
+fn quiet_on_broken_pipe() {
+    #[cfg(unix)]
+    // SAFETY: called first in main, before any thread exists; restoring the
+    // default disposition of SIGPIPE touches no memory of ours.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
 fn execute(cli: Cli, registry: &Registry) -> anyhow::Result<ExitCode> {
     match cli.command {
         Command::Run {
@@ -133,6 +146,12 @@ fn execute(cli: Cli, registry: &Registry) -> anyhow::Result<ExitCode> {
         } => {
             let valid = load_graph(&graph, &edit.sets, registry)?;
             let out_dir = out.unwrap_or_else(|| Path::new("out").join(folder_name(&valid.name)));
+            if out_dir.exists() && !out_dir.is_dir() {
+                anyhow::bail!(
+                    "--out {}: is a file, not a folder; give a folder for the run's report and files",
+                    out_dir.display()
+                );
+            }
             let cache = if no_cache {
                 None
             } else {

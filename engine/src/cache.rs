@@ -4,7 +4,9 @@
 //!
 //! A disk entry is one file `DIR/v{FORMAT_VERSION}/ab/<key>.entry`:
 //! magic `FUSEGRPH`, format version (u32), payload length (u64), blake3 of the
-//! payload (32 bytes), payload (metrics, outputs, figures, then notes). It is written to a unique
+//! payload (32 bytes), payload (the key it was written for, metrics, outputs,
+//! figures, then notes). An entry copied over another key's file fails the
+//! key test and is recomputed, never read as that key's result. It is written to a unique
 //! temporary file in the same folder and renamed into place, so readers see either
 //! nothing or a whole entry and concurrent writers of one key both succeed. A
 //! truncated or corrupt entry fails its length or checksum test and is recomputed.
@@ -116,7 +118,12 @@ impl DiskCache {
         std::fs::create_dir_all(&dir).map_err(|e| {
             io::Error::new(e.kind(), format!("cache folder {}: {e}", dir.display()))
         })?;
-        Ok(DiskCache { dir })
+        let cache = DiskCache { dir };
+        let removed = crate::workdir::clean_stale_temps(&cache.files_root());
+        if removed > 0 {
+            tracing::info!("removed {removed} temporary folders left by dead runs");
+        }
+        Ok(cache)
     }
 
     /// The folder holding the files of nodes that produce files, by key.
@@ -134,7 +141,7 @@ impl DiskCache {
     pub fn load(&self, key: &NodeKey) -> Lookup {
         let path = self.entry_path(key);
         match std::fs::read(&path) {
-            Ok(bytes) => match decode_entry(&bytes) {
+            Ok(bytes) => match decode_entry(&bytes, key) {
                 Ok(entry) => Lookup::Hit(entry),
                 Err(why) => Lookup::Corrupt(format!("{}: {why}", path.display())),
             },
@@ -154,7 +161,7 @@ impl DiskCache {
             std::process::id(),
             TEMP_COUNTER.fetch_add(1, Ordering::Relaxed)
         ));
-        let bytes = encode_entry(entry);
+        let bytes = encode_entry(key, entry);
         let result = std::fs::write(&temp, &bytes).and_then(|()| std::fs::rename(&temp, &path));
         if result.is_err() {
             let _ = std::fs::remove_file(&temp);
@@ -168,8 +175,9 @@ impl DiskCache {
     }
 }
 
-fn encode_entry(entry: &CacheEntry) -> Vec<u8> {
+fn encode_entry(key: &NodeKey, entry: &CacheEntry) -> Vec<u8> {
     let mut payload = Vec::new();
+    payload.extend_from_slice(&key.0);
     let mut w = Writer(&mut payload);
     w.usize(entry.metrics.len());
     for (name, value) in &entry.metrics {
@@ -215,7 +223,7 @@ fn encode_entry(entry: &CacheEntry) -> Vec<u8> {
     bytes
 }
 
-fn decode_entry(bytes: &[u8]) -> Result<CacheEntry, String> {
+fn decode_entry(bytes: &[u8], key: &NodeKey) -> Result<CacheEntry, String> {
     if bytes.len() < HEADER_LEN || &bytes[..8] != MAGIC {
         return Err(format!(
             "not a cache entry ({} bytes, bad header)",
@@ -239,7 +247,17 @@ fn decode_entry(bytes: &[u8]) -> Result<CacheEntry, String> {
     if blake3::hash(payload).as_bytes() != &bytes[20..52] {
         return Err("checksum mismatch".into());
     }
-    let mut r = Reader::new(payload);
+    if payload.len() < 32 || payload[..32] != key.0 {
+        let written_for = payload
+            .get(..32)
+            .map(|k| k.iter().map(|b| format!("{b:02x}")).collect::<String>())
+            .unwrap_or_default();
+        return Err(format!(
+            "written for key {written_for}, not {} (an entry copied over another's)",
+            key.hex()
+        ));
+    }
+    let mut r = Reader::new(&payload[32..]);
     let err = |e: crate::value::CodecError| e.to_string();
     let mut entry = CacheEntry::default();
     for _ in 0..r.usize().map_err(err)? {
@@ -328,15 +346,32 @@ mod tests {
     }
 
     #[test]
+    fn an_entry_copied_over_another_keys_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let cache = DiskCache::open(dir.path()).unwrap();
+        let (a, b) = (NodeKey([1; 32]), NodeKey([2; 32]));
+        cache.store(&a, &sample()).unwrap();
+        std::fs::create_dir_all(cache.entry_path(&b).parent().unwrap()).unwrap();
+        std::fs::copy(cache.entry_path(&a), cache.entry_path(&b)).unwrap();
+        match cache.load(&b) {
+            Lookup::Corrupt(why) => assert!(why.contains("written for key 0101"), "{why}"),
+            other => panic!("{other:?}"),
+        }
+        assert!(matches!(cache.load(&a), Lookup::Hit(_)));
+    }
+
+    #[test]
     fn every_truncation_and_bit_flip_is_detected() {
-        let bytes = encode_entry(&sample());
+        let key = NodeKey([3; 32]);
+        let bytes = encode_entry(&key, &sample());
+        assert_eq!(decode_entry(&bytes, &key), Ok(sample()));
         for cut in 0..bytes.len() {
-            assert!(decode_entry(&bytes[..cut]).is_err(), "cut at {cut}");
+            assert!(decode_entry(&bytes[..cut], &key).is_err(), "cut at {cut}");
         }
         for i in 0..bytes.len() {
             let mut b = bytes.clone();
             b[i] ^= 0x10;
-            assert!(decode_entry(&b).is_err(), "flip at {i}");
+            assert!(decode_entry(&b, &key).is_err(), "flip at {i}");
         }
     }
 }

@@ -38,6 +38,8 @@ pub enum ErrorKind {
     Cycle,
     /// A `--set` override is malformed or names an unknown node.
     BadOverride,
+    /// Two sinks write the same output file.
+    OutputClash,
 }
 
 /// One problem in a graph file.

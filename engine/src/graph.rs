@@ -61,16 +61,30 @@ pub struct GraphDoc {
 
 const GRAPH_KEYS: &[&str] = &["name", "description", "references"];
 
+/// The largest graph file read (64 MiB: about a million nodes).
+const MAX_GRAPH_BYTES: u64 = 64 << 20;
+
 impl GraphDoc {
     /// Reads and parses a graph file.
     pub fn load(file: &Path) -> Result<GraphDoc, GraphErrors> {
-        let text = std::fs::read_to_string(file).map_err(|e| {
-            GraphError::file(
-                ErrorKind::Unreadable,
-                file,
-                format!("cannot read the graph file: {e}"),
+        let unreadable = |why: String| GraphError::file(ErrorKind::Unreadable, file, why);
+        let meta = std::fs::metadata(file)
+            .map_err(|e| unreadable(format!("cannot read the graph file: {e}")))?;
+        if !meta.is_file() {
+            return Err(unreadable(
+                "not a regular file (a folder, device or FIFO): give a graph's .toml file".into(),
             )
-        })?;
+            .into());
+        }
+        if meta.len() > MAX_GRAPH_BYTES {
+            return Err(unreadable(format!(
+                "{} bytes, more than a graph file may hold ({MAX_GRAPH_BYTES})",
+                meta.len()
+            ))
+            .into());
+        }
+        let text = std::fs::read_to_string(file)
+            .map_err(|e| unreadable(format!("cannot read the graph file: {e}")))?;
         Self::parse(&text, file)
     }
 
@@ -154,8 +168,9 @@ impl GraphDoc {
             errors.push(err("the graph has no nodes (add [node.ID] tables)".into()));
         }
         // A group's copies must not take the id of another node.
-        for (i, n) in nodes.iter().enumerate() {
-            if nodes[..i].iter().any(|m| m.id == n.id) {
+        let mut ids = std::collections::HashSet::with_capacity(nodes.len());
+        for n in &nodes {
+            if !ids.insert(n.id.as_str()) {
                 errors.push(
                     GraphError::file(
                         ErrorKind::DuplicateId,
@@ -193,6 +208,12 @@ impl GraphDoc {
     /// valid TOML is taken as a plain string.
     pub fn apply_set(&mut self, assignment: &str) -> Result<(), GraphError> {
         let bad = |msg: String| GraphError::file(ErrorKind::BadOverride, &self.file, msg);
+        // A line break would end the value early in TOML, or start a table.
+        if assignment.contains(['\n', '\r']) {
+            return Err(bad(format!(
+                "--set {assignment:?}: a value may not hold a line break"
+            )));
+        }
         let (lhs, raw) = assignment
             .split_once('=')
             .ok_or_else(|| bad(format!("--set {assignment:?}: expected ID.KEY=VALUE")))?;
@@ -397,7 +418,8 @@ fn syntax_error(text: &str, file: &Path, e: &toml::de::Error) -> GraphErrors {
 /// TOML itself rejects a repeated `[node.ID]` table, with a generic message; find
 /// repeats first so the error names the id and both lines.
 fn check_duplicate_ids(text: &str, file: &Path) -> Result<(), GraphErrors> {
-    let mut seen: Vec<(String, usize)> = Vec::new();
+    // Id -> the line it was first defined on.
+    let mut seen: std::collections::HashMap<String, usize> = std::collections::HashMap::new();
     let mut errors = Vec::new();
     for (n, line) in text.lines().enumerate() {
         let t = line.trim();
@@ -414,7 +436,7 @@ fn check_duplicate_ids(text: &str, file: &Path) -> Result<(), GraphErrors> {
         if parts.len() != 2 || parts[0] != "node" {
             continue;
         }
-        match seen.iter().find(|(id, _)| *id == parts[1]) {
+        match seen.get_key_value(&parts[1]) {
             Some((id, first)) => errors.push(
                 GraphError::file(
                     ErrorKind::DuplicateId,
@@ -426,7 +448,9 @@ fn check_duplicate_ids(text: &str, file: &Path) -> Result<(), GraphErrors> {
                 )
                 .at_node(id),
             ),
-            None => seen.push((parts[1].clone(), n + 1)),
+            None => {
+                seen.insert(parts[1].clone(), n + 1);
+            }
         }
     }
     if errors.is_empty() {

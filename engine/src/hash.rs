@@ -7,7 +7,8 @@ use std::path::Path;
 
 /// Hashes a file's bytes, or a folder's files (recursively, in sorted order,
 /// each with its relative path so renames change the hash). Symbolic links are
-/// followed.
+/// followed. Only regular files and folders are read: a device (`/dev/zero`),
+/// a FIFO or a socket would block or never end, and is refused naming it.
 pub fn hash_path(path: &Path) -> io::Result<blake3::Hash> {
     let mut hasher = blake3::Hasher::new();
     let meta = std::fs::metadata(path).map_err(|e| with_path(path, e))?;
@@ -21,7 +22,24 @@ pub fn hash_path(path: &Path) -> io::Result<blake3::Hash> {
     Ok(hasher.finalize())
 }
 
+/// Refuses anything but a regular file or a folder (a device, FIFO or
+/// socket), naming it: reading one blocks or never ends.
+pub fn check_readable_kind(path: &Path, meta: &std::fs::Metadata) -> io::Result<()> {
+    if meta.is_file() || meta.is_dir() {
+        return Ok(());
+    }
+    Err(io::Error::new(
+        io::ErrorKind::InvalidInput,
+        format!(
+            "{}: not a regular file or folder (a device, FIFO or socket), refused",
+            path.display()
+        ),
+    ))
+}
+
 fn hash_file(path: &Path, hasher: &mut blake3::Hasher) -> io::Result<()> {
+    let meta = std::fs::metadata(path).map_err(|e| with_path(path, e))?;
+    check_readable_kind(path, &meta)?;
     let file = std::fs::File::open(path).map_err(|e| with_path(path, e))?;
     let len = file.metadata().map_err(|e| with_path(path, e))?.len();
     hasher.update(&len.to_le_bytes());
@@ -64,6 +82,24 @@ fn with_path(path: &Path, e: io::Error) -> io::Error {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[cfg(unix)]
+    #[test]
+    fn devices_and_fifos_are_refused_not_read() {
+        let e = hash_path(Path::new("/dev/zero")).unwrap_err();
+        assert!(
+            e.to_string().contains("/dev/zero: not a regular file"),
+            "{e}"
+        );
+        let t = tempfile::tempdir().unwrap();
+        std::fs::write(t.path().join("a.dcm"), "x").unwrap();
+        let fifo = t.path().join("pipe");
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        if made.is_ok_and(|s| s.success()) {
+            let e = hash_path(t.path()).unwrap_err();
+            assert!(e.to_string().contains("pipe: not a regular file"), "{e}");
+        }
+    }
 
     #[test]
     fn content_not_location_decides() {

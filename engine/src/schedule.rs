@@ -47,7 +47,12 @@ pub fn run_graph(
     options: &RunOptions,
     memory: &MemoryCache,
 ) -> Result<RunOutcome, std::io::Error> {
-    std::fs::create_dir_all(&options.out_dir)?;
+    std::fs::create_dir_all(&options.out_dir).map_err(|e| {
+        std::io::Error::new(
+            e.kind(),
+            format!("output folder {}: {e}", options.out_dir.display()),
+        )
+    })?;
     let start = Instant::now();
     let n = graph.nodes.len();
     let mut successors: Vec<BTreeSet<usize>> = vec![BTreeSet::new(); n];
@@ -199,15 +204,22 @@ impl<'a> Executor<'a> {
                     entry: None,
                 };
             };
-            let value = entry
-                .outputs
-                .0
-                .get(&e.from_port)
-                .expect("validated output exists");
+            let Some(value) = entry.outputs.0.get(&e.from_port) else {
+                // Lookups check entries against their op's outputs, so this
+                // is a bug, reported rather than panicking the run.
+                let why = format!(
+                    "upstream node `{}` has no output `{}`",
+                    self.graph.nodes[e.from].id, e.from_port
+                );
+                return Slot {
+                    report: report(NodeStatus::Skipped, Default::default(), Some(why)),
+                    entry: None,
+                };
+            };
             inputs.0.insert(e.port.clone(), value.clone());
         }
 
-        if let Some(entry) = self.lookup(&node.id, &key) {
+        if let Some(entry) = self.lookup(&node.id, node.op.spec(), &key) {
             tracing::info!(node = %node.id, "cached");
             return Slot {
                 report: NodeReport {
@@ -305,7 +317,7 @@ impl<'a> Executor<'a> {
 
     /// The cached result for `key`, from memory or disk; a corrupt or stale disk
     /// entry is logged, removed and treated as missing.
-    fn lookup(&self, id: &str, key: &NodeKey) -> Option<Arc<CacheEntry>> {
+    fn lookup(&self, id: &str, spec: &crate::op::OpSpec, key: &NodeKey) -> Option<Arc<CacheEntry>> {
         if let Some(entry) = self.memory.get(key) {
             return Some(entry);
         }
@@ -321,6 +333,11 @@ impl<'a> Executor<'a> {
         };
         if let Err(why) = entry.paths_intact() {
             tracing::info!(node = %id, "stale cache entry, recomputing: {why}");
+            return None;
+        }
+        if let Err(why) = check_outputs(spec, &entry.outputs.0) {
+            tracing::warn!(node = %id, "cache entry does not fit the op, recomputing: {why}");
+            disk.remove(key);
             return None;
         }
         let entry = Arc::new(entry);

@@ -51,42 +51,74 @@ pub fn run(
 ) -> Result<RunOutcome, RunError> {
     let keys = node_keys(graph, &options.out_dir)?;
     let outcome = run_graph(graph, &keys, options, memory)?;
+    if options.cache.is_none() {
+        // Without a cache, files nodes produced (a generated phantom) live
+        // under OUT/.work for the run only.
+        let work = options.out_dir.join(".work");
+        if work.exists()
+            && let Err(e) = std::fs::remove_dir_all(&work)
+        {
+            tracing::warn!("could not remove {}: {e}", work.display());
+        }
+    }
     write_report(&outcome.report, &graph.references, &options.out_dir)?;
     Ok(outcome)
 }
 
 /// Writes `report.json`, the nodes' figures under `figures/` and
-/// `report.html` into `out_dir`.
+/// `report.html` into `out_dir`, each file whole or not at all (see
+/// [`write_atomically`]). A file that cannot be written does not stop the
+/// others; the error names every one that failed.
 pub fn write_report(
     report: &RunReport,
     references: &[Reference],
     out_dir: &Path,
 ) -> std::io::Result<()> {
-    let write = |path: &Path, bytes: &[u8]| {
-        std::fs::write(path, bytes)
-            .map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", path.display())))
+    let mut failures: Vec<std::io::Error> = Vec::new();
+    let mut write = |path: &Path, bytes: &[u8]| {
+        if let Err(e) = write_atomically(path, bytes) {
+            failures.push(e);
+        }
     };
-    let figures_dir = out_dir.join("figures");
     for (id, node) in &report.nodes {
         for (figure, place) in node.figures.iter().zip(figure_refs(id, node)) {
             match &figure.data {
-                FigureData::Png(bytes) => {
-                    std::fs::create_dir_all(&figures_dir)?;
-                    write(&out_dir.join(&place.file), bytes)?;
-                }
-                FigureData::Svg(text) => {
-                    std::fs::create_dir_all(&figures_dir)?;
-                    write(&out_dir.join(&place.file), text.as_bytes())?;
-                }
+                FigureData::Png(bytes) => write(&out_dir.join(&place.file), bytes),
+                FigureData::Svg(text) => write(&out_dir.join(&place.file), text.as_bytes()),
                 // Drawn by the page itself, from data inside it.
                 FigureData::Points3d { .. } => {}
             }
         }
     }
     let text = serde_json::to_string_pretty(&report.to_json()).expect("plain data");
-    write(&out_dir.join("report.json"), (text + "\n").as_bytes())?;
+    write(&out_dir.join("report.json"), (text + "\n").as_bytes());
     write(
         &out_dir.join("report.html"),
         report_html(report, references).as_bytes(),
-    )
+    );
+    match failures.len() {
+        0 => Ok(()),
+        _ => {
+            let kind = failures[0].kind();
+            let all: Vec<String> = failures.iter().map(|e| e.to_string()).collect();
+            Err(std::io::Error::new(kind, all.join("; ")))
+        }
+    }
+}
+
+/// Writes `bytes` to `path` through a temporary file in the same folder and a
+/// rename, so that a reader (or a full disk) never leaves a partial file under
+/// the name; creates the folder. The error names the path.
+pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let named =
+        |e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: {e}", path.display()));
+    let folder = path.parent().unwrap_or(Path::new("."));
+    std::fs::create_dir_all(folder).map_err(named)?;
+    let name = path.file_name().unwrap_or_default().to_string_lossy();
+    let temp = folder.join(format!(".{name}.{}.tmp", std::process::id()));
+    let result = std::fs::write(&temp, bytes).and_then(|()| std::fs::rename(&temp, path));
+    if result.is_err() {
+        let _ = std::fs::remove_file(&temp);
+    }
+    result.map_err(named)
 }

@@ -59,6 +59,30 @@ impl ValidGraph {
     }
 }
 
+/// Sinks that would write the same file under the output folder (their
+/// `file` parameters are equal): one output would be lost.
+fn output_clashes(file: &std::path::Path, nodes: &[ValidNode]) -> Vec<GraphError> {
+    let mut writers: HashMap<&str, &str> = HashMap::new();
+    let mut errors = Vec::new();
+    for n in nodes.iter().filter(|n| n.op.spec().writes_output) {
+        let Some(ParamValue::String(name)) = n.params.0.get("file") else {
+            continue;
+        };
+        if let Some(first) = writers.insert(name.as_str(), n.id.as_str()) {
+            errors.push(
+                GraphError::file(
+                    ErrorKind::OutputClash,
+                    file,
+                    format!("writes {name:?}, as node `{first}` does: one output would be lost"),
+                )
+                .at_node(&n.id)
+                .at_key("file"),
+            );
+        }
+    }
+    errors
+}
+
 /// Checks `doc` against `registry`.
 pub fn validate(doc: &GraphDoc, registry: &Registry) -> Result<ValidGraph, GraphErrors> {
     let mut errors = Vec::new();
@@ -236,6 +260,7 @@ pub fn validate(doc: &GraphDoc, registry: &Registry) -> Result<ValidGraph, Graph
             inputs,
         });
     }
+    errors.extend(output_clashes(&doc.file, &nodes));
     if !errors.is_empty() {
         return Err(GraphErrors(errors));
     }

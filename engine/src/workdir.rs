@@ -11,6 +11,75 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 static COUNTER: AtomicU64 = AtomicU64::new(0);
 
+/// This machine's name as it appears in temporary folder names (letters,
+/// digits, `.` and `_` only), so that on a shared cache a process cleans only
+/// what its own machine's dead processes left.
+fn host_name() -> String {
+    let raw = std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .or_else(|_| std::fs::read_to_string("/etc/hostname"))
+        .unwrap_or_else(|_| "localhost".into());
+    let name: String = raw
+        .trim()
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '.' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    if name.is_empty() {
+        "localhost".into()
+    } else {
+        name
+    }
+}
+
+/// Whether process `pid` of this machine is alive; `true` where that cannot
+/// be told (so nothing of a live process is ever removed).
+fn process_alive(pid: u32) -> bool {
+    if cfg!(target_os = "linux") {
+        Path::new("/proc").join(pid.to_string()).exists()
+    } else {
+        true
+    }
+}
+
+/// Removes the temporary folders under `files_root` that this machine's
+/// processes left when they died mid-run (kill -9, power loss): a folder
+/// `.tmp-<key>-<host>-<pid>-<n>` of this host whose pid is gone. Returns how
+/// many it removed.
+pub fn clean_stale_temps(files_root: &Path) -> usize {
+    let Ok(entries) = std::fs::read_dir(files_root) else {
+        return 0;
+    };
+    let host = host_name();
+    let mut removed = 0;
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let Some(rest) = name.strip_prefix(".tmp-") else {
+            continue;
+        };
+        // <key>-<host>-<pid>-<n>; the host may hold '-' only as '_'.
+        let parts: Vec<&str> = rest.split('-').collect();
+        let [_key, h, pid, _n] = parts[..] else {
+            continue;
+        };
+        let Ok(pid) = pid.parse::<u32>() else {
+            continue;
+        };
+        if h == host
+            && pid != std::process::id()
+            && !process_alive(pid)
+            && std::fs::remove_dir_all(entry.path()).is_ok()
+        {
+            removed += 1;
+        }
+    }
+    removed
+}
+
 /// A node's files folder: a temporary location while it runs, a final one after.
 #[derive(Debug)]
 pub struct WorkDir {
@@ -26,7 +95,8 @@ impl WorkDir {
         let files_root =
             std::path::absolute(files_root).unwrap_or_else(|_| files_root.to_path_buf());
         let temp = files_root.join(format!(
-            ".tmp-{key_hex}-{}-{}",
+            ".tmp-{key_hex}-{}-{}-{}",
+            host_name(),
             std::process::id(),
             COUNTER.fetch_add(1, Ordering::Relaxed)
         ));
@@ -118,4 +188,33 @@ fn outputs_hold(outputs: &Outputs) -> bool {
     }
     .paths_intact()
     .is_ok()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn only_this_hosts_dead_processes_temps_are_cleaned() {
+        let root = tempfile::tempdir().unwrap();
+        let mut child = std::process::Command::new("true").spawn().unwrap();
+        let dead = child.id();
+        child.wait().unwrap();
+        let host = host_name();
+        let names = [
+            format!(".tmp-ab12-{host}-{dead}-0"),
+            format!(".tmp-ab12-{host}-{}-0", std::process::id()),
+            format!(".tmp-ab12-otherhost-{dead}-0"),
+            "ab12".to_string(),
+        ];
+        for n in &names {
+            std::fs::create_dir_all(root.path().join(n).join("mri")).unwrap();
+        }
+        assert_eq!(clean_stale_temps(root.path()), 1);
+        assert!(!root.path().join(&names[0]).exists());
+        for n in &names[1..] {
+            assert!(root.path().join(n).exists(), "{n}");
+        }
+    }
 }

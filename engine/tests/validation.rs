@@ -360,3 +360,30 @@ fn a_swapped_op_with_fitting_ports_is_valid() {
     let valid = load_graph(&g, &["b.op=test.add".into()], &reg).unwrap();
     assert_eq!(valid.nodes[1].op.spec().name, "test.add");
 }
+
+#[test]
+fn two_sinks_writing_one_file_are_refused() {
+    let sinks = format!(
+        "{OK}\n[node.w1]\nop = \"test.write\"\nin.value = \"a.value\"\nfile = \"out.txt\"\n\n\
+         [node.w2]\nop = \"test.write\"\nin.value = \"b.value\"\nfile = \"out.txt\"\n"
+    );
+    let errs = errors(&sinks, &[]);
+    expect(
+        &errs,
+        ErrorKind::OutputClash,
+        "w2",
+        Some("file"),
+        &["writes \"out.txt\", as node `w1` does"],
+    );
+}
+
+#[test]
+fn a_set_value_with_a_line_break_is_refused() {
+    let errs = errors(OK, &["a.value=2\n[node.x]"]);
+    assert_eq!(errs[0].kind, ErrorKind::BadOverride, "{errs:?}");
+    assert!(
+        errs[0].message.contains("may not hold a line break"),
+        "{}",
+        errs[0]
+    );
+}

@@ -108,11 +108,32 @@ fn project(p: &Matrix3x4<f64>, x: &Point3<f64>) -> Vector2<f64> {
     Vector2::new(h.x / h.z, h.y / h.z)
 }
 
+/// The most triangulations a study may run (minutes on 2 cores): a bound on
+/// `points x repetitions x baselines` that keeps a run within the machine.
+pub const MAX_TRIANGULATIONS: f64 = 1e9;
+
 /// Runs the study. Points are drawn once (so every baseline sees the same
 /// points), uniformly in the part of the left camera's view between the range
 /// limits that every rig also sees in its right camera. Deterministic for a
-/// seed; parallel over points.
+/// seed; parallel over points. A reversed range or a study too large for the
+/// machine is an error.
 pub fn baseline_study(p: &StudyParams) -> Result<BaselineStudy, String> {
+    let [near, far] = p.range_mm;
+    if !(near.is_finite() && far.is_finite() && near < far) {
+        return Err(format!(
+            "range_mm = [{near}, {far}]: give the near then the far end of the working range"
+        ));
+    }
+    // Each repetition triangulates every point once per baseline.
+    let work = (p.points as f64) * (p.repetitions as f64) * (p.baselines_mm.len() as f64);
+    if work > MAX_TRIANGULATIONS {
+        return Err(format!(
+            "{} points x {} repetitions x {} baselines = {work:.3e} triangulations, above {MAX_TRIANGULATIONS:.0e}: fewer points or repetitions",
+            p.points,
+            p.repetitions,
+            p.baselines_mm.len()
+        ));
+    }
     let f_px = p.focal_mm / p.pixel_mm;
     let [w, h] = p.image_px.map(|v| v as f64);
     let k = nalgebra::Matrix3::new(f_px, 0.0, w / 2.0, 0.0, f_px, h / 2.0, 0.0, 0.0, 1.0);
@@ -212,6 +233,23 @@ mod tests {
             noise_px: 1.0,
             seed: 7,
         }
+    }
+
+    #[test]
+    fn a_reversed_range_or_an_oversized_study_is_an_error() {
+        let reversed = StudyParams {
+            range_mm: [700.0, 400.0],
+            ..params()
+        };
+        let e = baseline_study(&reversed).unwrap_err();
+        assert!(e.contains("range_mm = [700, 400]"), "{e}");
+        let huge = StudyParams {
+            points: 1_000_000,
+            repetitions: 100_000,
+            ..params()
+        };
+        let e = baseline_study(&huge).unwrap_err();
+        assert!(e.contains("triangulations, above 1e9"), "{e}");
     }
 
     #[test]

@@ -368,7 +368,14 @@ fn check_outputs(
                     port.type_names()
                 )));
             }
-            Some(_) => {}
+            Some(v) => {
+                if let Some(what) = v.non_finite() {
+                    return Err(OpError::invalid(format!(
+                        "op `{}` produced a non-finite number in {what} of output `{}` (NaN or infinity): an input or parameter is out of its meaningful range",
+                        spec.name, port.name
+                    )));
+                }
+            }
         }
     }
     if let Some(extra) = outputs.keys().find(|k| spec.output_port(k).is_none()) {

@@ -116,6 +116,45 @@ value_types! {
     Path => PathValue,
 }
 
+impl Value {
+    /// Where a value that must hold finite numbers does not: a NaN or an
+    /// infinity in a scalar, transform, camera, rig, rectification or marker
+    /// position (large arrays such as disparities mark "unknown" with NaN,
+    /// and are not checked). A NaN pose downstream would hang iterative
+    /// solvers or poison every result silently.
+    pub fn non_finite(&self) -> Option<&'static str> {
+        let flat3 = |m: &[[f64; 3]; 3]| m.iter().flatten().copied().collect::<Vec<_>>();
+        let camera = |c: &Camera| {
+            let mut v = flat3(&c.k);
+            v.extend(c.distortion);
+            v
+        };
+        let (numbers, what): (Vec<f64>, &'static str) = match self {
+            Value::Scalar(v) => (vec![**v], "the value"),
+            Value::Transform(t) => (t.matrix.iter().flatten().copied().collect(), "the matrix"),
+            Value::Camera(c) => (camera(c), "the intrinsics"),
+            Value::StereoRig(r) => {
+                let mut v = camera(&r.left);
+                v.extend(camera(&r.right));
+                v.extend(flat3(&r.rotation));
+                v.extend(r.translation_mm);
+                (v, "the cameras or extrinsics")
+            }
+            Value::Rectification(r) => {
+                let mut v = flat3(&r.r1);
+                v.extend(flat3(&r.r2));
+                v.extend(r.p1.iter().flatten());
+                v.extend(r.p2.iter().flatten());
+                v.extend(r.q.iter().flatten());
+                (v, "the rotations or projections")
+            }
+            Value::Markers(m) => (m.positions_mm.to_vec(), "a marker position"),
+            _ => return None,
+        };
+        numbers.iter().any(|x| !x.is_finite()).then_some(what)
+    }
+}
+
 /// Typed access to a [`Value`]'s payload.
 pub trait FromValue: Sized {
     /// The value type this Rust type is carried as.

@@ -2,7 +2,7 @@
 
 use super::*;
 use crate::camera::{CameraModel, isometry_from_matrix, isometry_to_matrix};
-use crate::io::{grey_of, load_grey};
+use crate::io::{grey_of, load_grey_within, max_megapixels_param, max_pixels};
 use fusegraph_engine::value::{Camera, Image, PathValue, Pixels, Rectification, StereoRig, Table};
 use fusegraph_engine::{
     Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType,
@@ -187,6 +187,7 @@ impl FindChessboardOp {
                 .length(2),
             )
             .param(ParamSpec::float("square_mm", 25.0, "mm", "Square size").at_least(1e-3))
+            .param(max_megapixels_param())
             .output(
                 "corners",
                 ValueType::Table,
@@ -283,12 +284,14 @@ impl Op for FindChessboardOp {
         for note in &photos.skipped {
             ctx.note(note.clone());
         }
+        let max_pixels = max_pixels(params)?;
         let files: Vec<(u32, &std::path::PathBuf)> =
             photos.files.iter().map(|(v, f)| (*v, f)).collect();
         let results: Vec<Detection> = files
             .par_iter()
             .map(|(_, f)| {
-                let img = load_grey(f).map_err(|e| (e.to_string(), (0, 0), 1))?;
+                let img =
+                    load_grey_within(f, max_pixels).map_err(|e| (e.to_string(), (0, 0), 1))?;
                 find_chessboard(&img.levels, img.width, img.height, cols, rows)
                     .map(|c| (c, img.width, img.height))
                     .map_err(|why| (why.to_string(), (img.width, img.height), why.code()))

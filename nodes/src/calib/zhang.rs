@@ -75,7 +75,9 @@ pub fn pose_from_homography(
         m.column(2) * scale * sign,
     );
     let r = Matrix3::from_columns(&[r1, r2, r1.cross(&r2)]);
-    Some((Rotation3::from_matrix(&r), t))
+    // Bounded iterations: a degenerate homography must not hang.
+    let r = Rotation3::from_matrix_eps(&r, 1e-15, 100, Rotation3::identity());
+    (r.matrix().iter().all(|x| x.is_finite()) && t.iter().all(|x| x.is_finite())).then_some((r, t))
 }
 
 #[cfg(test)]

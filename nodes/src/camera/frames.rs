@@ -15,7 +15,9 @@ pub fn isometry_to_matrix(iso: &Isometry3<f64>) -> [[f64; 4]; 4] {
 /// (re-orthonormalised, so matrices read from text keep working).
 pub fn isometry_from_matrix(m: &[[f64; 4]; 4]) -> Isometry3<f64> {
     let r = Matrix3::from_fn(|i, j| m[i][j]);
-    let rotation = Rotation3::from_matrix(&r);
+    // Bounded: nalgebra's `from_matrix` iterates until it converges, which a
+    // NaN never does.
+    let rotation = Rotation3::from_matrix_eps(&r, 1e-15, 100, Rotation3::identity());
     Isometry3::from_parts(
         Translation3::new(m[0][3], m[1][3], m[2][3]),
         UnitQuaternion::from_rotation_matrix(&rotation),

@@ -7,11 +7,65 @@ use fusegraph_engine::{
 };
 use std::sync::Arc;
 
-/// Reads a PNG, JPEG or TIFF file as 8-bit RGB.
+/// The largest image read by default, in pixels (100 Mpixel: well above any
+/// camera; a header declaring more is refused before anything is allocated).
+pub const DEFAULT_MAX_PIXELS: u64 = 100_000_000;
+
+/// The `max_megapixels` parameter of the ops that read images.
+pub(crate) fn max_megapixels_param() -> ParamSpec {
+    ParamSpec::float(
+        "max_megapixels",
+        DEFAULT_MAX_PIXELS as f64 / 1e6,
+        "Mpixel",
+        "Largest image to decode: a file whose header declares more is refused before decoding",
+    )
+    .range(0.01, 10_000.0)
+}
+
+/// Pixels allowed by a `max_megapixels` parameter.
+pub(crate) fn max_pixels(params: &Params) -> Result<u64, OpError> {
+    Ok((params.float("max_megapixels")? * 1e6) as u64)
+}
+
+/// Refuses an image whose declared size exceeds `max_pixels`, naming the file,
+/// the size and the memory decoding it would take.
+fn check_size(path: &std::path::Path, (w, h): (u64, u64), max_pixels: u64) -> Result<(), OpError> {
+    if w.saturating_mul(h) <= max_pixels {
+        return Ok(());
+    }
+    Err(OpError::invalid(format!(
+        "{}: declares {w} x {h} px ({:.0} Mpixel, about {:.1} GB decoded), above the limit of {:.0} Mpixel (max_megapixels)",
+        path.display(),
+        (w * h) as f64 / 1e6,
+        (w * h * 3) as f64 / 1e9,
+        max_pixels as f64 / 1e6
+    )))
+}
+
+/// Reads a PNG or JPEG file as 8-bit RGB (at most [`DEFAULT_MAX_PIXELS`]).
 pub fn load_image(path: &std::path::Path) -> Result<Image, OpError> {
-    let img = image::open(path)
-        .map_err(|e| OpError::invalid(format!("{}: {e}", path.display())))?
-        .to_rgb8();
+    load_image_within(path, DEFAULT_MAX_PIXELS)
+}
+
+/// Reads a PNG or JPEG file as 8-bit RGB; a header declaring more than
+/// `max_pixels` is refused before decoding, and the decoder may allocate no
+/// more than the image needs.
+pub fn load_image_within(path: &std::path::Path, max_pixels: u64) -> Result<Image, OpError> {
+    let named = |e: image::ImageError| OpError::invalid(format!("{}: {e}", path.display()));
+    let reader = || -> Result<image::ImageReader<_>, OpError> {
+        image::ImageReader::open(path)
+            .map_err(|e| OpError::io(path, e))?
+            .with_guessed_format()
+            .map_err(|e| OpError::io(path, e))
+    };
+    let (w, h) = reader()?.into_dimensions().map_err(named)?;
+    check_size(path, (w as u64, h as u64), max_pixels)?;
+    let mut limits = image::Limits::default();
+    // RGBA at 16 bits is the widest output, plus a copy while converting.
+    limits.max_alloc = Some((w as u64 * h as u64 * 8).saturating_mul(2).max(1 << 20));
+    let mut r = reader()?;
+    r.limits(limits);
+    let img = r.decode().map_err(named)?.to_rgb8();
     let (w, h) = img.dimensions();
     Image::new(w as usize, h as usize, 3, Pixels::U8(img.into_raw().into()))
         .map_err(|e| OpError::invalid(e.0))
@@ -34,6 +88,12 @@ pub struct GreyImage {
 /// conversion; other formats go through [`load_image`] and [`grey_of`].
 /// Same bytes, same levels, in every binary and on any thread count.
 pub fn load_grey(path: &std::path::Path) -> Result<GreyImage, OpError> {
+    load_grey_within(path, DEFAULT_MAX_PIXELS)
+}
+
+/// [`load_grey`], refusing an image whose header declares more than
+/// `max_pixels` before decoding it.
+pub fn load_grey_within(path: &std::path::Path, max_pixels: u64) -> Result<GreyImage, OpError> {
     let bytes = std::fs::read(path).map_err(|e| OpError::io(path, e))?;
     if bytes.starts_with(&[0xFF, 0xD8]) {
         use zune_core::bytestream::ZCursor;
@@ -41,6 +101,12 @@ pub fn load_grey(path: &std::path::Path) -> Result<GreyImage, OpError> {
         use zune_core::options::DecoderOptions;
         let options = DecoderOptions::default().jpeg_set_out_colorspace(ColorSpace::Luma);
         let mut decoder = zune_jpeg::JpegDecoder::new_with_options(ZCursor::new(&bytes), options);
+        decoder
+            .decode_headers()
+            .map_err(|e| OpError::invalid(format!("{}: {e:?}", path.display())))?;
+        if let Some((w, h)) = decoder.dimensions() {
+            check_size(path, (w as u64, h as u64), max_pixels)?;
+        }
         let luma = decoder
             .decode()
             .map_err(|e| OpError::invalid(format!("{}: {e:?}", path.display())))?;
@@ -61,7 +127,7 @@ pub fn load_grey(path: &std::path::Path) -> Result<GreyImage, OpError> {
             levels,
         });
     }
-    let img = load_image(path)?;
+    let img = load_image_within(path, max_pixels)?;
     Ok(GreyImage {
         width: img.width,
         height: img.height,
@@ -174,10 +240,11 @@ impl ReadImageOp {
         ReadImageOp(
             OpSpec::new(
                 "io.read_image",
-                1,
-                "Read an image file (PNG, JPEG, TIFF) as 8-bit RGB",
+                2,
+                "Read an image file (PNG or JPEG) as 8-bit RGB",
             )
             .with_source_file()
+            .param(max_megapixels_param())
             .output("image", ValueType::Image, "The image"),
         )
     }
@@ -189,7 +256,7 @@ impl Op for ReadImageOp {
     }
     fn run(&self, inputs: &Inputs, params: &Params, _: &mut RunCtx) -> Result<Outputs, OpError> {
         let path = source_file(inputs, params)?;
-        Ok(Outputs::new().with("image", load_image(&path)?))
+        Ok(Outputs::new().with("image", load_image_within(&path, max_pixels(params)?)?))
     }
 }
 
@@ -237,5 +304,58 @@ impl Op for WriteStereoPairOp {
         )
         .map_err(|e| OpError::invalid(format!("{}: {e}", path.display())))?;
         Ok(Outputs::new().with("file", path_value(&path)?))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A PNG file of a few dozen bytes whose header declares `w x h` pixels.
+    fn png_declaring(w: u32, h: u32) -> Vec<u8> {
+        let mut ihdr = b"IHDR".to_vec();
+        ihdr.extend(w.to_be_bytes());
+        ihdr.extend(h.to_be_bytes());
+        ihdr.extend([8, 0, 0, 0, 0]); // 8-bit grey, no interlace
+        let chunk = |body: &[u8]| {
+            let mut crc = flate2::Crc::new();
+            crc.update(body);
+            let mut c = ((body.len() - 4) as u32).to_be_bytes().to_vec();
+            c.extend(body);
+            c.extend(crc.sum().to_be_bytes());
+            c
+        };
+        // The first scanlines only (a few zero bytes compressed): the rest of
+        // the declared image is missing, as in a crafted file.
+        let mut z = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::fast());
+        std::io::Write::write_all(&mut z, &[0u8; 64]).unwrap();
+        let mut idat = b"IDAT".to_vec();
+        idat.extend(z.finish().unwrap());
+        let mut png = b"\x89PNG\r\n\x1a\n".to_vec();
+        png.extend(chunk(&ihdr));
+        png.extend(chunk(&idat));
+        png.extend(chunk(b"IEND"));
+        png
+    }
+
+    #[test]
+    fn a_header_declaring_a_huge_image_is_refused_before_decoding() {
+        let t = tempfile::tempdir().unwrap();
+        let path = t.path().join("bomb.png");
+        std::fs::write(&path, png_declaring(20_000, 20_000)).unwrap();
+        for result in [load_image(&path).map(|_| ()), load_grey(&path).map(|_| ())] {
+            let e = result.unwrap_err().to_string();
+            assert!(
+                e.contains("bomb.png: declares 20000 x 20000 px (400 Mpixel"),
+                "{e}"
+            );
+            assert!(e.contains("above the limit of 100 Mpixel"), "{e}");
+        }
+        // A real photo within a smaller limit is refused the same way.
+        let photo = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../tests/data/chessboard/calibration03.jpg");
+        let e = load_grey_within(&photo, 100_000).unwrap_err().to_string();
+        assert!(e.contains("declares 1280 x 720 px"), "{e}");
+        assert!(load_grey_within(&photo, 1_000_000).is_ok());
     }
 }

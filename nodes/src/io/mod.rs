@@ -16,7 +16,11 @@ mod write_volume;
 pub use disparity::{
     decode_pfm, decode_pgm, disparity_png, encode_pfm, finite_percentiles, read_disparity, viridis,
 };
-pub use images::{GreyImage, grey_of, load_grey, load_image, side_by_side};
+pub use images::{
+    DEFAULT_MAX_PIXELS, GreyImage, grey_of, load_grey, load_grey_within, load_image,
+    load_image_within, side_by_side,
+};
+pub(crate) use images::{max_megapixels_param, max_pixels};
 pub use read_markers::{parse_markups, parse_points_csv};
 pub use write_json::value_to_json;
 pub use write_markers::{markers_csv, slicer_markups};

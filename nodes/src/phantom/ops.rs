@@ -202,11 +202,11 @@ impl RigPoseOp {
             .param(ParamSpec::int("view", 0, "", "Which view pair").at_least(0.0))
             .param(
                 ParamSpec::float("noise_mm", 0.0, "mm", "Uniform position error, each axis")
-                    .at_least(0.0),
+                    .range(0.0, 1000.0),
             )
             .param(
                 ParamSpec::float("noise_deg", 0.0, "deg", "Uniform rotation error, each axis")
-                    .at_least(0.0),
+                    .range(0.0, 180.0),
             )
             .param(ParamSpec::int("seed", 1, "", "Seed of the noise").at_least(0.0))
             .output("pose", ValueType::Transform, "camera_left -> world"),

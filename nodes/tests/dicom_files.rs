@@ -583,3 +583,53 @@ fn rt_dose_32_bit_grids_load_with_dose_scaling_and_frame_offsets() {
         "{msg}"
     );
 }
+
+/// Peak resident memory of this process (VmHWM), in MB, or `None` without
+/// /proc. Reset first (writing 5 to /proc/self/clear_refs) so that earlier
+/// tests do not count.
+fn peak_rss_mb(reset: bool) -> Option<f64> {
+    if reset {
+        let _ = std::fs::write("/proc/self/clear_refs", "5");
+    }
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+/// `bytes` with the 4-byte length of the last element with `tag` (group,
+/// element; explicit VR little endian, a 4-byte-length VR) set to `len`.
+fn patch_length(bytes: &mut [u8], (group, element): (u16, u16), len: u32) {
+    let mut pattern = group.to_le_bytes().to_vec();
+    pattern.extend(element.to_le_bytes());
+    let at = bytes
+        .windows(4)
+        .rposition(|w| w == pattern.as_slice())
+        .expect("tag in file");
+    bytes[at + 8..at + 12].copy_from_slice(&len.to_le_bytes());
+}
+
+#[test]
+fn a_pixel_data_length_beyond_the_file_is_refused_without_reading_it() {
+    let t = tempfile::tempdir().unwrap();
+    let path = t.path().join("huge_length.dcm");
+    let mut bytes = std::fs::read(data("MR_small.dcm")).unwrap();
+    patch_length(&mut bytes, (0x7fe0, 0x0010), 0xFFFF_FFF0);
+    std::fs::write(&path, &bytes).unwrap();
+    let before = peak_rss_mb(true);
+    let p = path.clone();
+    let result = std::thread::spawn(move || load_series(&p, None))
+        .join()
+        .expect("no panic");
+    let after = peak_rss_mb(false);
+    eprintln!("peak RSS: {before:?} MB before the load, {after:?} MB after");
+    let msg = result.unwrap_err().to_string();
+    eprintln!("{msg}");
+    assert!(
+        msg.contains("huge_length.dcm") && msg.contains("PixelData") && msg.contains("4294967280"),
+        "{msg}"
+    );
+    if let Some(after) = after {
+        assert!(after < 300.0, "peak RSS {after} MB");
+    }
+}

@@ -13,10 +13,18 @@
 //! structured reports, RT plans, ...) are skipped with a warning per file.
 
 mod frames;
+mod header;
+mod layout;
 mod ops;
 mod series;
 
 pub use frames::{FileContent, Frame, read_file, read_frames};
+pub use header::{
+    MAX_DECODE_BYTES, MAX_SPACING_MM, MAX_VOXELS, ORIENTATION_TOLERANCE, PixelFormat,
+    check_orientation, check_pixel_size, check_pixel_spacing, expected_pixel_bytes, finite_numbers,
+    number_of_frames, pixel_format,
+};
+pub use layout::{Layout, LengthError, scan_layout, tag_name};
 pub use series::{LoadedSeries, MAX_NAMED_SKIPS, SeriesError, assemble, load_series};
 
 use fusegraph_engine::Registry;

@@ -298,7 +298,7 @@ fn check_lengths(path: &Path) -> Result<(), String> {
         return Ok(()); // the parser names the error
     };
     let len = file.metadata().map(|m| m.len()).unwrap_or(u64::MAX);
-    match scan_layout(std::io::BufReader::new(file), len) {
+    match scan_layout(file, len) {
         Ok(_) => Ok(()),
         // A fragment of encapsulated pixel data (an item inside PixelData).
         Err(e) if e.in_pixel_data && e.tag.group() == 0xFFFE => {
@@ -443,10 +443,7 @@ fn grid_frame_positions(
 }
 
 fn fmt_list(v: &[f64]) -> String {
-    v.iter()
-        .map(|x| x.to_string())
-        .collect::<Vec<_>>()
-        .join(", ")
+    super::header::fmt_numbers(v)
 }
 
 /// One frame's place in space, read and checked before any pixel is decoded.
@@ -500,8 +497,9 @@ fn decode_frames(
         let value = numbers(obj, tag, path)?.and_then(|v| v.first().copied());
         if let Some(t) = value.filter(|t| t.abs() > MAX_SPACING_MM) {
             return Err(format!(
-                "{file}: {} {t} mm is absurd (more than {MAX_SPACING_MM} mm)",
-                tag_name(tag)
+                "{file}: {} {} mm is absurd (more than {MAX_SPACING_MM} mm)",
+                tag_name(tag),
+                super::header::fmt_number(t)
             ));
         }
         thickness = thickness.or(value.filter(|t| *t > 0.0));

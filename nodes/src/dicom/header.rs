@@ -230,6 +230,24 @@ pub fn finite_numbers(obj: &InMemDicomObject, tag: Tag) -> Result<Option<Vec<f64
     }
 }
 
+/// A number as short text: plain ("0.5", "-99.48"), or with an exponent
+/// when very large or small ("1e308").
+pub(crate) fn fmt_number(x: f64) -> String {
+    if x != 0.0 && !(1e-4..1e6).contains(&x.abs()) {
+        format!("{x:e}")
+    } else {
+        x.to_string()
+    }
+}
+
+/// Numbers as "a, b, c".
+pub(crate) fn fmt_numbers(v: &[f64]) -> String {
+    v.iter()
+        .map(|&x| fmt_number(x))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
 /// Checks PixelSpacing (between rows, between columns): finite, positive and
 /// at most [`MAX_SPACING_MM`].
 pub fn check_pixel_spacing(spacing: [f64; 2]) -> Result<(), String> {
@@ -237,10 +255,9 @@ pub fn check_pixel_spacing(spacing: [f64; 2]) -> Result<(), String> {
         return Ok(());
     }
     Err(format!(
-        "{} [{}, {}] must be positive and at most {MAX_SPACING_MM} mm",
+        "{} [{}] must be positive and at most {MAX_SPACING_MM} mm",
         tag_name(tags::PIXEL_SPACING),
-        spacing[0],
-        spacing[1]
+        fmt_numbers(&spacing)
     ))
 }
 
@@ -257,10 +274,7 @@ pub fn check_orientation(iop: [f64; 6]) -> Result<(), String> {
     Err(format!(
         "{} [{}] is not two orthogonal unit vectors (lengths {nr:.4} and {nc:.4}, dot product {rc:.4})",
         tag_name(tags::IMAGE_ORIENTATION_PATIENT),
-        iop.iter()
-            .map(|x| x.to_string())
-            .collect::<Vec<_>>()
-            .join(", ")
+        fmt_numbers(&iop)
     ))
 }
 

@@ -8,7 +8,7 @@
 //! than what is left of the file, so memory stays bounded by the file's size.
 
 use dicom_core::Tag;
-use std::io::{Read, Seek, SeekFrom};
+use std::io::{BufReader, Read, Seek, SeekFrom};
 
 /// Implicit VR Little Endian.
 const IMPLICIT_LE: &str = "1.2.840.10008.1.2";
@@ -104,7 +104,7 @@ fn long_vr(vr: [u8; 2]) -> bool {
 }
 
 struct Walker<R> {
-    r: R,
+    r: BufReader<R>,
     pos: u64,
     len: u64,
 }
@@ -143,7 +143,7 @@ impl<R: Read + Seek> Walker<R> {
     }
 
     fn skip(&mut self, n: u32) -> std::io::Result<()> {
-        self.r.seek(SeekFrom::Current(n as i64))?;
+        self.r.seek_relative(n as i64)?;
         self.pos += n as u64;
         Ok(())
     }
@@ -193,7 +193,7 @@ impl<R: Read + Seek> Walker<R> {
 /// data set is not walked.
 pub fn scan_layout<R: Read + Seek>(r: R, file_len: u64) -> Result<Option<Layout>, LengthError> {
     let mut w = Walker {
-        r,
+        r: BufReader::new(r),
         pos: 0,
         len: file_len,
     };

@@ -224,6 +224,13 @@ const JPEG_LS: [&str; 2] = ["1.2.840.10008.1.2.4.80", "1.2.840.10008.1.2.4.81"];
 /// truncated or corrupt data (a decoder that panics on it included), missing
 /// geometry, an unsupported transfer syntax or sample format. Objects without
 /// pixel data come back as [`FileContent::NotImage`].
+///
+/// Before anything is decoded: element lengths are checked against the file
+/// size ([`scan_layout`], so memory stays bounded by the file), the Image Pixel
+/// module ([`pixel_format`]), the PixelData size against the dimensions and a
+/// memory cap ([`check_pixel_size`]), and rescale and geometry numbers (they
+/// must parse and be finite; spacing positive and sane; orientation
+/// orthonormal). `catch_unwind` around the decoder stays as the last defence.
 pub fn read_file(path: &Path) -> Result<FileContent, String> {
     check_lengths(path)?;
     let obj: DefaultDicomObject = std::panic::catch_unwind(|| dicom_object::open_file(path))

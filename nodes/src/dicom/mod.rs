@@ -9,7 +9,10 @@
 //! DoseGridScaling applied and frames placed by GridFrameOffsetVector).
 //! Geometry comes from ImagePositionPatient, ImageOrientationPatient and
 //! PixelSpacing; slices are ordered by their position along the slice normal,
-//! never by file name or InstanceNumber. Non-image objects in a folder (DICOMDIR,
+//! never by file name or InstanceNumber. Headers are checked before decoding
+//! (declared lengths against the file size, the pixel module, the pixel data
+//! size, numbers that must parse and be finite), and the slices of a series
+//! must share one pixel format. Non-image objects in a folder (DICOMDIR,
 //! structured reports, RT plans, ...) are skipped with a warning per file.
 
 mod frames;

@@ -583,3 +583,429 @@ fn rt_dose_32_bit_grids_load_with_dose_scaling_and_frame_offsets() {
         "{msg}"
     );
 }
+
+/// Peak resident memory of this process (VmHWM), in MB, or `None` without
+/// /proc. Reset first (writing 5 to /proc/self/clear_refs) so that earlier
+/// tests do not count.
+fn peak_rss_mb(reset: bool) -> Option<f64> {
+    if reset {
+        let _ = std::fs::write("/proc/self/clear_refs", "5");
+    }
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+/// `bytes` with the 4-byte length of the last element with `tag` (group,
+/// element; explicit VR little endian, a 4-byte-length VR) set to `len`.
+fn patch_length(bytes: &mut [u8], (group, element): (u16, u16), len: u32) {
+    let mut pattern = group.to_le_bytes().to_vec();
+    pattern.extend(element.to_le_bytes());
+    let at = bytes
+        .windows(4)
+        .rposition(|w| w == pattern.as_slice())
+        .expect("tag in file");
+    bytes[at + 8..at + 12].copy_from_slice(&len.to_le_bytes());
+}
+
+#[test]
+fn a_pixel_data_length_beyond_the_file_is_refused_without_reading_it() {
+    let t = tempfile::tempdir().unwrap();
+    let path = t.path().join("huge_length.dcm");
+    let mut bytes = std::fs::read(data("MR_small.dcm")).unwrap();
+    patch_length(&mut bytes, (0x7fe0, 0x0010), 0xFFFF_FFF0);
+    std::fs::write(&path, &bytes).unwrap();
+    let before = peak_rss_mb(true);
+    let p = path.clone();
+    let result = std::thread::spawn(move || load_series(&p, None))
+        .join()
+        .expect("no panic");
+    let after = peak_rss_mb(false);
+    eprintln!("peak RSS: {before:?} MB before the load, {after:?} MB after");
+    let msg = result.unwrap_err().to_string();
+    eprintln!("{msg}");
+    assert!(
+        msg.contains("huge_length.dcm") && msg.contains("PixelData") && msg.contains("4294967280"),
+        "{msg}"
+    );
+    if let Some(after) = after {
+        assert!(after < 300.0, "peak RSS {after} MB");
+    }
+}
+
+/// A 4 x 3 axial MR slice at `z` (16-bit unsigned, explicit VR little
+/// endian, full geometry, RescaleSlope 1), changed by `edit` before it is
+/// written.
+fn write_slice(
+    path: &std::path::Path,
+    z: f64,
+    edit: impl FnOnce(&mut dicom_object::InMemDicomObject),
+) {
+    use dicom_core::value::{C, PrimitiveValue};
+    use dicom_core::{DataElement, VR};
+    use dicom_dictionary_std::{tags, uids};
+    let mut obj = dicom_object::InMemDicomObject::new_empty();
+    obj.put(DataElement::new(
+        tags::SERIES_INSTANCE_UID,
+        VR::UI,
+        PrimitiveValue::from("2.25.777"),
+    ));
+    put_pixel_module(&mut obj, "MR", (4, 3), 1, 16);
+    for (tag, value) in [
+        (tags::IMAGE_POSITION_PATIENT, format!("0\\0\\{z}")),
+        (tags::IMAGE_ORIENTATION_PATIENT, "1\\0\\0\\0\\1\\0".into()),
+        (tags::PIXEL_SPACING, "0.5\\0.5".into()),
+        (tags::SLICE_THICKNESS, "2".into()),
+        (tags::RESCALE_SLOPE, "1".into()),
+        (tags::RESCALE_INTERCEPT, "0".into()),
+    ] {
+        let parts: Vec<String> = value.split('\\').map(String::from).collect();
+        obj.put(DataElement::new(
+            tag,
+            VR::DS,
+            PrimitiveValue::Strs(parts.into()),
+        ));
+    }
+    obj.put(DataElement::new(
+        tags::PIXEL_DATA,
+        VR::OW,
+        PrimitiveValue::U16(C::from_vec((0..12).collect())),
+    ));
+    edit(&mut obj);
+    write_object(path, uids::MR_IMAGE_STORAGE, obj);
+}
+
+/// Sets a US attribute.
+fn put_us(obj: &mut dicom_object::InMemDicomObject, tag: dicom_core::Tag, v: u16) {
+    use dicom_core::value::PrimitiveValue;
+    obj.put(dicom_core::DataElement::new(
+        tag,
+        dicom_core::VR::US,
+        PrimitiveValue::from(v),
+    ));
+}
+
+/// Sets a DS attribute to `text` as written (values split at `\`).
+fn put_ds(obj: &mut dicom_object::InMemDicomObject, tag: dicom_core::Tag, text: &str) {
+    use dicom_core::value::PrimitiveValue;
+    let parts: Vec<String> = text.split('\\').map(String::from).collect();
+    obj.put(dicom_core::DataElement::new(
+        tag,
+        dicom_core::VR::DS,
+        PrimitiveValue::Strs(parts.into()),
+    ));
+}
+
+/// Loads `path`, expecting an error; runs in a thread so that a panic
+/// fails the test with its text instead of aborting the others.
+fn load_error(path: &std::path::Path) -> String {
+    let p = path.to_path_buf();
+    match std::thread::spawn(move || load_series(&p, None)).join() {
+        Ok(Ok(_)) => panic!("{} loaded", path.display()),
+        Ok(Err(e)) => e.to_string(),
+        Err(_) => panic!("{}: the loader panicked", path.display()),
+    }
+}
+
+#[test]
+fn the_slice_writer_gives_a_loadable_slice() {
+    let t = tempfile::tempdir().unwrap();
+    let path = t.path().join("ok.dcm");
+    write_slice(&path, 0.0, |_| {});
+    let s = load_series(&path, None).unwrap();
+    assert_eq!(s.grid.dims, [3, 4, 1]);
+    assert_eq!(s.voxels[11], 11.0);
+}
+
+#[test]
+fn a_transfer_syntax_that_does_not_match_the_data_is_refused_cheaply() {
+    // An explicit VR file whose meta group says implicit VR: value bytes
+    // would be read as lengths.
+    let t = tempfile::tempdir().unwrap();
+    let path = t.path().join("wrong_syntax.dcm");
+    write_slice(&path, 0.0, |_| {});
+    let mut bytes = std::fs::read(&path).unwrap();
+    let explicit = b"1.2.840.10008.1.2.1\0";
+    let at = bytes
+        .windows(explicit.len())
+        .position(|w| w == explicit)
+        .unwrap();
+    bytes[at..at + explicit.len()].copy_from_slice(b"1.2.840.10008.1.2\0\0\0");
+    std::fs::write(&path, &bytes).unwrap();
+    let before = peak_rss_mb(true);
+    let msg = load_error(&path);
+    let after = peak_rss_mb(false);
+    eprintln!("peak RSS: {before:?} MB before the load, {after:?} MB after");
+    assert!(
+        msg.contains("wrong_syntax.dcm: unreadable DICOM file: ")
+            && msg.contains("(0008,0016) declares")
+            && msg.contains("transfer syntax 1.2.840.10008.1.2 that does not match"),
+        "{msg}"
+    );
+    if let Some(after) = after {
+        assert!(after < 300.0, "peak RSS {after} MB");
+    }
+}
+
+#[test]
+fn header_bit_flips_are_refused_naming_the_tags() {
+    let t = tempfile::tempdir().unwrap();
+    let original = std::fs::read(data("MR_small.dcm")).unwrap();
+    // Rows 64 -> 64 | 0x4000 (bit 14 of the US value of (0028,0010)).
+    let rows = [0x28, 0x00, 0x10, 0x00, b'U', b'S', 2, 0, 64, 0];
+    let at = original.windows(10).position(|w| w == rows).unwrap();
+    let mut bytes = original.clone();
+    bytes[at + 9] |= 0x40;
+    let path = t.path().join("rows_flipped.dcm");
+    std::fs::write(&path, &bytes).unwrap();
+    let msg = load_error(&path);
+    assert!(
+        msg.contains(
+            "rows_flipped.dcm: PixelData (7FE0,0010) is 8192 bytes, but Rows 16448 x Columns 64"
+        ) && msg.contains("= 2105344 bytes"),
+        "{msg}"
+    );
+    // A flipped high bit in PixelData's length: 8192 -> 8192 + 2^30.
+    let mut bytes = original.clone();
+    patch_length(&mut bytes, (0x7fe0, 0x0010), 8192 | 1 << 30);
+    let path = t.path().join("length_flipped.dcm");
+    std::fs::write(&path, &bytes).unwrap();
+    let before = peak_rss_mb(true);
+    let msg = load_error(&path);
+    let after = peak_rss_mb(false);
+    eprintln!("peak RSS: {before:?} MB before the load, {after:?} MB after");
+    assert!(
+        msg.contains("length_flipped.dcm")
+            && msg.contains("PixelData (7FE0,0010) declares 1073750016 bytes"),
+        "{msg}"
+    );
+    if let Some(after) = after {
+        assert!(after < 300.0, "peak RSS {after} MB");
+    }
+}
+
+#[test]
+fn absurd_dimensions_of_compressed_data_are_refused_naming_the_memory() {
+    // RLE: the PixelData length says nothing about the decoded size.
+    let t = tempfile::tempdir().unwrap();
+    let mut bytes = std::fs::read(data("MR_small_RLE.dcm")).unwrap();
+    for element in [0x10u8, 0x11] {
+        let tag = [0x28, 0x00, element, 0x00, b'U', b'S', 2, 0, 64, 0];
+        let at = bytes.windows(10).position(|w| w == tag).unwrap();
+        bytes[at + 8..at + 10].copy_from_slice(&[0xFF, 0xFF]);
+    }
+    let path = t.path().join("huge_rle.dcm");
+    std::fs::write(&path, &bytes).unwrap();
+    let msg = load_error(&path);
+    assert!(
+        msg.contains("huge_rle.dcm: Rows 65535 x Columns 65535 x NumberOfFrames 1")
+            && msg.contains("4294836225 voxels would take about 25.8 GB to decode")
+            && msg.contains("RLE Lossless"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn inconsistent_pixel_modules_are_errors_not_panics() {
+    use dicom_dictionary_std::tags;
+    let t = tempfile::tempdir().unwrap();
+    type Case = (
+        &'static str,
+        &'static [(dicom_core::Tag, u16)],
+        &'static str,
+    );
+    let cases: [Case; 7] = [
+        (
+            "stored0",
+            &[(tags::BITS_STORED, 0)],
+            "BitsAllocated 16, BitsStored 0, HighBit 15: BitsStored must be 1 to BitsAllocated",
+        ),
+        (
+            "stored17",
+            &[(tags::BITS_STORED, 17), (tags::HIGH_BIT, 16)],
+            "BitsAllocated 16, BitsStored 17, HighBit 16: BitsStored must be 1 to BitsAllocated",
+        ),
+        (
+            "highbit",
+            &[(tags::BITS_STORED, 12)],
+            "BitsAllocated 16, BitsStored 12, HighBit 15: HighBit must be BitsStored - 1",
+        ),
+        (
+            "allocated12",
+            &[
+                (tags::BITS_ALLOCATED, 12),
+                (tags::BITS_STORED, 12),
+                (tags::HIGH_BIT, 11),
+            ],
+            "BitsAllocated 12, BitsStored 12, HighBit 11: BitsAllocated must be 8, 16 or 32",
+        ),
+        (
+            "samples0",
+            &[(tags::SAMPLES_PER_PIXEL, 0)],
+            "SamplesPerPixel 0",
+        ),
+        ("rows0", &[(tags::ROWS, 0)], "Rows 0, Columns 3"),
+        ("cols0", &[(tags::COLUMNS, 0)], "Rows 4, Columns 0"),
+    ];
+    for (name, values, expected) in cases {
+        let path = t.path().join(format!("{name}.dcm"));
+        write_slice(&path, 0.0, |obj| {
+            for &(tag, v) in values {
+                put_us(obj, tag, v);
+            }
+        });
+        let msg = load_error(&path);
+        assert!(
+            msg.contains(&format!("{name}.dcm: {expected}")),
+            "{name}: {msg}"
+        );
+    }
+}
+
+#[test]
+fn a_slice_in_another_pixel_format_is_named_with_the_values() {
+    use dicom_core::value::{C, PrimitiveValue};
+    use dicom_dictionary_std::tags;
+    let t = tempfile::tempdir().unwrap();
+    for k in 0..4 {
+        write_slice(&t.path().join(format!("s{k}.dcm")), 2.0 * k as f64, |obj| {
+            if k == 2 {
+                for tag in [tags::BITS_ALLOCATED, tags::BITS_STORED] {
+                    put_us(obj, tag, 8);
+                }
+                put_us(obj, tags::HIGH_BIT, 7);
+                obj.put(dicom_core::DataElement::new(
+                    tags::PIXEL_DATA,
+                    dicom_core::VR::OB,
+                    PrimitiveValue::U8(C::from_vec((0..12).collect())),
+                ));
+            }
+        });
+    }
+    let err = load_series(t.path(), None).unwrap_err();
+    assert!(matches!(err, SeriesError::Format(_)), "{err}");
+    let msg = err.to_string();
+    assert!(
+        msg.contains(&format!(
+            "{} has BitsAllocated 8, BitsStored 8, but 3 other files have BitsAllocated 16, BitsStored 16",
+            t.path().join("s2.dcm").display()
+        )),
+        "{msg}"
+    );
+    // Signedness and photometric interpretation count too.
+    write_slice(&t.path().join("s2.dcm"), 4.0, |obj| {
+        put_us(obj, tags::PIXEL_REPRESENTATION, 1);
+        obj.put(dicom_core::DataElement::new(
+            tags::PHOTOMETRIC_INTERPRETATION,
+            dicom_core::VR::CS,
+            PrimitiveValue::from("MONOCHROME1"),
+        ));
+    });
+    let msg = load_series(t.path(), None).unwrap_err().to_string();
+    assert!(
+        msg.contains("s2.dcm has PixelRepresentation 1, PhotometricInterpretation MONOCHROME1, but 3 other files have PixelRepresentation 0, PhotometricInterpretation MONOCHROME2"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn malformed_or_non_finite_numbers_are_errors_naming_the_tag() {
+    use dicom_dictionary_std::tags;
+    let t = tempfile::tempdir().unwrap();
+    let cases = [
+        (
+            tags::RESCALE_SLOPE,
+            "abc",
+            "RescaleSlope (0028,1053) is not a number: \"abc\"",
+        ),
+        (
+            tags::RESCALE_SLOPE,
+            "nan",
+            "RescaleSlope (0028,1053) is not finite: \"nan\"",
+        ),
+        (
+            tags::RESCALE_INTERCEPT,
+            "inf",
+            "RescaleIntercept (0028,1052) is not finite: \"inf\"",
+        ),
+        (tags::RESCALE_SLOPE, "0", "RescaleSlope (0028,1053) is 0"),
+        (
+            tags::PIXEL_SPACING,
+            "0.5\\abc",
+            "PixelSpacing (0028,0030) is not a number: \"0.5\\\\abc\"",
+        ),
+        (
+            tags::PIXEL_SPACING,
+            "1e308\\0.5",
+            "PixelSpacing (0028,0030) [1e308, 0.5] must be positive and at most 10000 mm",
+        ),
+        (
+            tags::PIXEL_SPACING,
+            "0\\0.5",
+            "PixelSpacing (0028,0030) [0, 0.5] must be positive",
+        ),
+        (
+            tags::SLICE_THICKNESS,
+            "nan",
+            "SliceThickness (0018,0050) is not finite",
+        ),
+        (
+            tags::SLICE_THICKNESS,
+            "1e300",
+            "SliceThickness (0018,0050) 1e300 mm is absurd",
+        ),
+        (
+            tags::IMAGE_POSITION_PATIENT,
+            "0\\x\\0",
+            "ImagePositionPatient (0020,0032) is not a number",
+        ),
+        (
+            tags::IMAGE_POSITION_PATIENT,
+            "0\\inf\\0",
+            "ImagePositionPatient (0020,0032) is not finite",
+        ),
+        (
+            tags::IMAGE_ORIENTATION_PATIENT,
+            "1\\0\\0\\0\\nan\\0",
+            "ImageOrientationPatient (0020,0037) is not finite",
+        ),
+        (
+            tags::IMAGE_ORIENTATION_PATIENT,
+            "1\\0\\0\\0\\2\\0",
+            "ImageOrientationPatient (0020,0037) [1, 0, 0, 0, 2, 0] is not two orthogonal unit vectors (lengths 1.0000 and 2.0000",
+        ),
+        (
+            tags::IMAGE_ORIENTATION_PATIENT,
+            "1\\0\\0\\0.6\\0.8\\0",
+            "ImageOrientationPatient (0020,0037) [1, 0, 0, 0.6, 0.8, 0] is not two orthogonal unit vectors (lengths 1.0000 and 1.0000, dot product 0.6000)",
+        ),
+        (
+            tags::DOSE_GRID_SCALING,
+            "abc",
+            "DoseGridScaling (3004,000E) is not a number",
+        ),
+        (
+            tags::DOSE_GRID_SCALING,
+            "-1",
+            "DoseGridScaling (3004,000E) [-1] must be one positive number",
+        ),
+    ];
+    for (i, (tag, text, expected)) in cases.into_iter().enumerate() {
+        let path = t.path().join(format!("case{i}.dcm"));
+        write_slice(&path, 0.0, |obj| put_ds(obj, tag, text));
+        let msg = load_error(&path);
+        assert!(
+            msg.contains(&format!("case{i}.dcm: {expected}")),
+            "{text}: {msg}"
+        );
+    }
+    // GridFrameOffsetVector (RT Dose) with a non-finite offset.
+    let path = t.path().join("dose.dcm");
+    write_rt_dose(&path, &[0.0, f64::NAN, 5.0], [1.0, 0.0, 0.0, 0.0, 1.0, 0.0]);
+    let msg = load_error(&path);
+    assert!(
+        msg.contains("dose.dcm: GridFrameOffsetVector (3004,000C) is not finite"),
+        "{msg}"
+    );
+}

@@ -1,5 +1,10 @@
 //! One DICOM file -> its image frames with their geometry, rescaled to f32.
 
+use super::header::{
+    MAX_SPACING_MM, PixelFormat, check_orientation, check_pixel_size, check_pixel_spacing,
+    finite_numbers, number_of_frames, pixel_format,
+};
+use super::layout::{scan_layout, tag_name};
 use dicom_core::Tag;
 use dicom_dictionary_std::tags;
 use dicom_object::{DefaultDicomObject, InMemDicomObject};
@@ -31,6 +36,8 @@ pub struct Frame {
     pub pixel_spacing: [f64; 2],
     /// SliceThickness or SpacingBetweenSlices, mm, if given.
     pub slice_thickness: Option<f64>,
+    /// The file's pixel format (what every slice of a series must share).
+    pub format: PixelFormat,
     /// Pixel values with the modality rescale applied, row-major.
     pub pixels: Vec<f32>,
 }
@@ -55,8 +62,10 @@ fn text(obj: &InMemDicomObject, tag: Tag) -> String {
         .unwrap_or_default()
 }
 
-fn numbers(obj: &InMemDicomObject, tag: Tag) -> Option<Vec<f64>> {
-    obj.element_opt(tag).ok().flatten()?.to_multi_float64().ok()
+/// A numeric attribute, `None` when absent; malformed or non-finite values are
+/// errors naming the file and the tag.
+fn numbers(obj: &InMemDicomObject, tag: Tag, path: &Path) -> Result<Option<Vec<f64>>, String> {
+    finite_numbers(obj, tag).map_err(|e| format!("{}: {e}", path.display()))
 }
 
 /// The first item of sequence `seq` in `obj`.
@@ -71,17 +80,50 @@ fn geometry(
     per_frame: Option<&InMemDicomObject>,
     macro_seq: Tag,
     tag: Tag,
-) -> Option<Vec<f64>> {
+    path: &Path,
+) -> Result<Option<Vec<f64>>, String> {
     let shared = item(obj, tags::SHARED_FUNCTIONAL_GROUPS_SEQUENCE);
-    per_frame
-        .and_then(|f| item(f, macro_seq))
-        .and_then(|m| numbers(m, tag))
-        .or_else(|| {
-            shared
-                .and_then(|s| item(s, macro_seq))
-                .and_then(|m| numbers(m, tag))
-        })
-        .or_else(|| numbers(obj, tag))
+    for group in [per_frame, shared] {
+        if let Some(m) = group.and_then(|g| item(g, macro_seq))
+            && let Some(v) = numbers(m, tag, path)?
+        {
+            return Ok(Some(v));
+        }
+    }
+    numbers(obj, tag, path)
+}
+
+/// Checks RescaleSlope and RescaleIntercept wherever they are (top level, or
+/// the functional groups' PixelValueTransformationSequence): numbers, finite,
+/// a slope other than 0. dicom-pixeldata takes a value it cannot parse as
+/// slope 1 or intercept 0, which gives values silently off.
+fn check_rescale(obj: &InMemDicomObject, path: &Path) -> Result<(), String> {
+    let mut places = vec![obj];
+    for seq in [
+        tags::SHARED_FUNCTIONAL_GROUPS_SEQUENCE,
+        tags::PER_FRAME_FUNCTIONAL_GROUPS_SEQUENCE,
+    ] {
+        if let Some(items) = obj.element_opt(seq).ok().flatten().and_then(|e| e.items()) {
+            places.extend(
+                items
+                    .iter()
+                    .filter_map(|i| item(i, tags::PIXEL_VALUE_TRANSFORMATION_SEQUENCE)),
+            );
+        }
+    }
+    for place in places {
+        numbers(place, tags::RESCALE_INTERCEPT, path)?;
+        if let Some(slope) = numbers(place, tags::RESCALE_SLOPE, path)?
+            && slope.contains(&0.0)
+        {
+            return Err(format!(
+                "{}: {} is 0 (every voxel would be the intercept)",
+                path.display(),
+                tag_name(tags::RESCALE_SLOPE)
+            ));
+        }
+    }
+    Ok(())
 }
 
 fn fixed<const N: usize>(v: Option<Vec<f64>>, path: &Path, name: &str) -> Result<[f64; N], String> {
@@ -182,7 +224,15 @@ const JPEG_LS: [&str; 2] = ["1.2.840.10008.1.2.4.80", "1.2.840.10008.1.2.4.81"];
 /// truncated or corrupt data (a decoder that panics on it included), missing
 /// geometry, an unsupported transfer syntax or sample format. Objects without
 /// pixel data come back as [`FileContent::NotImage`].
+///
+/// Before anything is decoded: element lengths are checked against the file
+/// size ([`scan_layout`], so memory stays bounded by the file), the Image Pixel
+/// module ([`pixel_format`]), the PixelData size against the dimensions and a
+/// memory cap ([`check_pixel_size`]), and rescale and geometry numbers (they
+/// must parse and be finite; spacing positive and sane; orientation
+/// orthonormal). `catch_unwind` around the decoder stays as the last defence.
 pub fn read_file(path: &Path) -> Result<FileContent, String> {
+    check_lengths(path)?;
     let obj: DefaultDicomObject = std::panic::catch_unwind(|| dicom_object::open_file(path))
         .map_err(|payload| {
             format!(
@@ -219,8 +269,24 @@ pub fn read_file(path: &Path) -> Result<FileContent, String> {
             path.display()
         ));
     }
+    let format = pixel_format(&obj).map_err(|e| format!("{}: {e}", path.display()))?;
+    let frames = number_of_frames(&obj).map_err(|e| format!("{}: {e}", path.display()))?;
+    let native_len = match ts {
+        Some(ts) if !ts.is_encapsulated_pixel_data() => obj
+            .element(tags::PIXEL_DATA)
+            .ok()
+            .map(|e| e.value().to_bytes().map_or(0, |b| b.len() as u64)),
+        _ => None,
+    };
+    check_pixel_size(&format, frames, native_len).map_err(|e| {
+        format!(
+            "{}: {e} [transfer syntax {syntax}, {syntax_name}]",
+            path.display()
+        )
+    })?;
+    check_rescale(&obj, path)?;
     let decoded = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-        decode_frames(&obj, path, &syntax, &syntax_name)
+        decode_frames(&obj, path, &syntax, &syntax_name, &format)
     }))
     .unwrap_or_else(|payload| {
         Err(format!(
@@ -230,6 +296,33 @@ pub fn read_file(path: &Path) -> Result<FileContent, String> {
         ))
     })?;
     Ok(FileContent::Frames(decoded))
+}
+
+/// Refuses a file whose element headers declare more bytes than the file
+/// holds, before dicom-object allocates them (see [`scan_layout`]).
+fn check_lengths(path: &Path) -> Result<(), String> {
+    let Ok(file) = std::fs::File::open(path) else {
+        return Ok(()); // the parser names the error
+    };
+    let len = file.metadata().map(|m| m.len()).unwrap_or(u64::MAX);
+    match scan_layout(file, len) {
+        Ok(_) => Ok(()),
+        // A fragment of encapsulated pixel data (an item inside PixelData).
+        Err(e) if e.in_pixel_data && e.tag.group() == 0xFFFE => {
+            let name = dicom_transfer_syntax_registry::TransferSyntaxRegistry
+                .get(&e.transfer_syntax)
+                .map(|ts| ts.name().to_string())
+                .unwrap_or_else(|| "unknown".into());
+            Err(format!(
+                "{}: pixel data could not be decoded ({name}): {e}; the file is {len} bytes",
+                path.display()
+            ))
+        }
+        Err(e) => Err(format!(
+            "{}: unreadable DICOM file: {e}; the file is {len} bytes",
+            path.display()
+        )),
+    }
 }
 
 /// Reads every frame of one image file; an object without pixel data is an
@@ -305,7 +398,7 @@ fn grid_frame_positions(
     frames: u32,
     path: &Path,
 ) -> Result<Option<Vec<[f64; 3]>>, String> {
-    let Some(offsets) = numbers(obj, tags::GRID_FRAME_OFFSET_VECTOR) else {
+    let Some(offsets) = numbers(obj, tags::GRID_FRAME_OFFSET_VECTOR, path)? else {
         return Ok(None);
     };
     let list = || fmt_list(&offsets);
@@ -318,12 +411,12 @@ fn grid_frame_positions(
         ));
     }
     let ipp: [f64; 3] = fixed(
-        numbers(obj, tags::IMAGE_POSITION_PATIENT),
+        numbers(obj, tags::IMAGE_POSITION_PATIENT, path)?,
         path,
         "ImagePositionPatient",
     )?;
     let iop: [f64; 6] = fixed(
-        numbers(obj, tags::IMAGE_ORIENTATION_PATIENT),
+        numbers(obj, tags::IMAGE_ORIENTATION_PATIENT, path)?,
         path,
         "ImageOrientationPatient",
     )?;
@@ -357,10 +450,14 @@ fn grid_frame_positions(
 }
 
 fn fmt_list(v: &[f64]) -> String {
-    v.iter()
-        .map(|x| x.to_string())
-        .collect::<Vec<_>>()
-        .join(", ")
+    super::header::fmt_numbers(v)
+}
+
+/// One frame's place in space, read and checked before any pixel is decoded.
+struct Placement {
+    position: [f64; 3],
+    orientation: [f64; 6],
+    pixel_spacing: [f64; 2],
 }
 
 fn decode_frames(
@@ -368,23 +465,16 @@ fn decode_frames(
     path: &Path,
     syntax: &str,
     syntax_name: &str,
+    format: &PixelFormat,
 ) -> Result<Vec<Frame>, String> {
-    let decoded = obj.decode_pixel_data().map_err(|e| {
-        format!(
-            "{}: pixel data could not be decoded ({syntax_name}): {} [transfer syntax {syntax}]",
-            path.display(),
-            error_chain(&e)
-        )
-    })?;
-    let (rows, cols) = (decoded.rows() as usize, decoded.columns() as usize);
-    if decoded.samples_per_pixel() != 1 {
+    let file = path.display();
+    if format.samples_per_pixel != 1 {
         return Err(format!(
-            "{}: {} samples per pixel; only greyscale images form a volume",
-            path.display(),
-            decoded.samples_per_pixel()
+            "{file}: {} samples per pixel; only greyscale images form a volume",
+            format.samples_per_pixel
         ));
     }
-    let frames = decoded.number_of_frames().max(1);
+    let frames = number_of_frames(obj).map_err(|e| format!("{file}: {e}"))?;
     let per_frame_items = obj
         .element_opt(tags::PER_FRAME_FUNCTIONAL_GROUPS_SEQUENCE)
         .ok()
@@ -396,24 +486,32 @@ fn decode_frames(
         None => None,
     };
     // RT Dose: stored values times DoseGridScaling are the dose in Gy.
-    let dose_scaling = match numbers(obj, tags::DOSE_GRID_SCALING) {
+    let dose_scaling = match numbers(obj, tags::DOSE_GRID_SCALING, path)? {
         None => None,
         Some(v) => match v.first() {
-            Some(&s) if s.is_finite() && s > 0.0 => Some(s),
+            Some(&s) if s > 0.0 => Some(s),
             _ => {
                 return Err(format!(
-                    "{}: DoseGridScaling [{}] must be one positive number",
-                    path.display(),
+                    "{file}: {} [{}] must be one positive number",
+                    tag_name(tags::DOSE_GRID_SCALING),
                     fmt_list(&v)
                 ));
             }
         },
     };
-    let thickness = numbers(obj, tags::SPACING_BETWEEN_SLICES)
-        .or_else(|| numbers(obj, tags::SLICE_THICKNESS))
-        .and_then(|v| v.first().copied())
-        .filter(|t| *t > 0.0);
-    let mut out = Vec::with_capacity(frames as usize);
+    let mut thickness = None;
+    for tag in [tags::SPACING_BETWEEN_SLICES, tags::SLICE_THICKNESS] {
+        let value = numbers(obj, tag, path)?.and_then(|v| v.first().copied());
+        if let Some(t) = value.filter(|t| t.abs() > MAX_SPACING_MM) {
+            return Err(format!(
+                "{file}: {} {} mm is absurd (more than {MAX_SPACING_MM} mm)",
+                tag_name(tag),
+                super::header::fmt_number(t)
+            ));
+        }
+        thickness = thickness.or(value.filter(|t| *t > 0.0));
+    }
+    let mut placements = Vec::with_capacity(frames as usize);
     for f in 0..frames {
         let per_frame = per_frame_items.and_then(|items| items.get(f as usize));
         let position = match &grid_positions {
@@ -423,25 +521,46 @@ fn decode_frames(
                 per_frame,
                 tags::PLANE_POSITION_SEQUENCE,
                 tags::IMAGE_POSITION_PATIENT,
-            ),
+                path,
+            )?,
         };
         let orientation = geometry(
             obj,
             per_frame,
             tags::PLANE_ORIENTATION_SEQUENCE,
             tags::IMAGE_ORIENTATION_PATIENT,
-        );
+            path,
+        )?;
         let spacing = geometry(
             obj,
             per_frame,
             tags::PIXEL_MEASURES_SEQUENCE,
             tags::PIXEL_SPACING,
-        );
+            path,
+        )?;
+        let orientation: [f64; 6] = fixed(orientation, path, "ImageOrientationPatient")?;
+        check_orientation(orientation).map_err(|e| format!("{file}: {e}"))?;
+        let pixel_spacing: [f64; 2] = fixed(spacing, path, "PixelSpacing")?;
+        check_pixel_spacing(pixel_spacing).map_err(|e| format!("{file}: {e}"))?;
+        placements.push(Placement {
+            position: fixed(position, path, "ImagePositionPatient")?,
+            orientation,
+            pixel_spacing,
+        });
+    }
+    let decoded = obj.decode_pixel_data().map_err(|e| {
+        format!(
+            "{file}: pixel data could not be decoded ({syntax_name}): {} [transfer syntax {syntax}]",
+            error_chain(&e)
+        )
+    })?;
+    let (rows, cols) = (format.rows as usize, format.cols as usize);
+    let mut out = Vec::with_capacity(frames as usize);
+    for (f, place) in (0..frames).zip(placements) {
         let mut pixels = frame_values(&decoded, f, path)?;
         if pixels.len() != rows * cols {
             return Err(format!(
-                "{}: frame {f} has {} pixels, expected {rows} x {cols} (truncated?)",
-                path.display(),
+                "{file}: frame {f} has {} pixels, expected {rows} x {cols} (truncated?)",
                 pixels.len()
             ));
         }
@@ -450,14 +569,6 @@ fn decode_frames(
                 *p = (*p as f64 * s) as f32;
             }
         }
-        let orientation: [f64; 6] = fixed(orientation, path, "ImageOrientationPatient")?;
-        let pixel_spacing: [f64; 2] = fixed(spacing, path, "PixelSpacing")?;
-        if pixel_spacing.iter().any(|&s| s <= 0.0) {
-            return Err(format!(
-                "{}: PixelSpacing {pixel_spacing:?} must be positive",
-                path.display()
-            ));
-        }
         out.push(Frame {
             file: path.to_path_buf(),
             frame: f,
@@ -465,10 +576,11 @@ fn decode_frames(
             series_description: text(obj, tags::SERIES_DESCRIPTION),
             rows,
             cols,
-            position: fixed(position, path, "ImagePositionPatient")?,
-            orientation,
-            pixel_spacing,
+            position: place.position,
+            orientation: place.orientation,
+            pixel_spacing: place.pixel_spacing,
             slice_thickness: thickness,
+            format: format.clone(),
             pixels,
         });
     }

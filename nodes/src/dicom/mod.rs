@@ -9,14 +9,25 @@
 //! DoseGridScaling applied and frames placed by GridFrameOffsetVector).
 //! Geometry comes from ImagePositionPatient, ImageOrientationPatient and
 //! PixelSpacing; slices are ordered by their position along the slice normal,
-//! never by file name or InstanceNumber. Non-image objects in a folder (DICOMDIR,
+//! never by file name or InstanceNumber. Headers are checked before decoding
+//! (declared lengths against the file size, the pixel module, the pixel data
+//! size, numbers that must parse and be finite), and the slices of a series
+//! must share one pixel format. Non-image objects in a folder (DICOMDIR,
 //! structured reports, RT plans, ...) are skipped with a warning per file.
 
 mod frames;
+mod header;
+mod layout;
 mod ops;
 mod series;
 
 pub use frames::{FileContent, Frame, read_file, read_frames};
+pub use header::{
+    MAX_DECODE_BYTES, MAX_SPACING_MM, MAX_VOXELS, ORIENTATION_TOLERANCE, PixelFormat,
+    check_orientation, check_pixel_size, check_pixel_spacing, expected_pixel_bytes, finite_numbers,
+    number_of_frames, pixel_format,
+};
+pub use layout::{Layout, LengthError, scan_layout, tag_name};
 pub use series::{LoadedSeries, MAX_NAMED_SKIPS, SeriesError, assemble, load_series};
 
 use fusegraph_engine::Registry;

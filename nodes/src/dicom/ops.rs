@@ -14,7 +14,7 @@ impl LoadSeriesOp {
         LoadSeriesOp(
             OpSpec::new(
                 "dicom.load_series",
-                2,
+                3,
                 "Read a DICOM series (a folder of slices, or one multi-frame file) as a volume in patient LPS mm",
             )
             .optional_input("dir", &[ValueType::Path], "Folder or file from another node (instead of `path`)")

@@ -3,6 +3,7 @@
 //! building the voxel -> patient affine.
 
 use super::frames::{FileContent, Frame, looks_like_dicom, read_file};
+use super::header::PixelFormat;
 use fusegraph_engine::value::Grid;
 use rayon::prelude::*;
 use std::collections::BTreeMap;
@@ -48,6 +49,11 @@ pub enum SeriesError {
     /// Frames are unevenly spaced, missing or repeated.
     #[error("slices are not evenly spaced along the normal: {0}")]
     Spacing(String),
+    /// Files differ in pixel format (BitsAllocated, BitsStored,
+    /// PixelRepresentation, SamplesPerPixel, PhotometricInterpretation, Rows,
+    /// Columns).
+    #[error("slices differ in pixel format: {0}")]
+    Format(String),
     /// Frames differ in size or pixel spacing, or are sheared.
     #[error("slices do not form one grid: {0}")]
     Grid(String),
@@ -245,6 +251,53 @@ fn fmt3(v: &[f64]) -> String {
     format!("[{}]", parts.join(", "))
 }
 
+/// Checks that every file of a series has one pixel format (bits, sign,
+/// samples, photometric interpretation, size): an 8-bit slice among 16-bit
+/// ones would otherwise load with values on another scale. The error names
+/// the first file that differs from the most common format, its values and
+/// those of the others.
+fn check_formats(frames: &[Frame]) -> Result<(), SeriesError> {
+    let mut files: Vec<(&Path, &PixelFormat)> = Vec::new();
+    for f in frames {
+        if !files.iter().any(|(p, _)| *p == f.file.as_path()) {
+            files.push((&f.file, &f.format));
+        }
+    }
+    let mut counts: Vec<(&PixelFormat, usize)> = Vec::new();
+    for (_, format) in &files {
+        match counts.iter_mut().find(|(c, _)| c == format) {
+            Some((_, n)) => *n += 1,
+            None => counts.push((format, 1)),
+        }
+    }
+    if counts.len() < 2 {
+        return Ok(());
+    }
+    // The most common format (the first seen on a tie) is taken as the series'.
+    let (common, n) = counts
+        .iter()
+        .fold(counts[0], |best, &c| if c.1 > best.1 { c } else { best });
+    let (odd, format) = files
+        .iter()
+        .find(|(_, f)| *f != common)
+        .expect("two formats");
+    let (mine, theirs) = format.differences(common);
+    let others = if n == 1 {
+        "another file has".to_string()
+    } else {
+        format!("{n} other files have")
+    };
+    Err(SeriesError::Format(format!(
+        "{} has {mine}, but {others} {theirs}{}",
+        odd.display(),
+        if counts.len() > 2 {
+            format!(" ({} different formats in the series)", counts.len())
+        } else {
+            String::new()
+        }
+    )))
+}
+
 /// Checks that `frames` (one series) form a regular grid and stacks them in order
 /// along the slice normal. Returns the grid, voxels and warnings.
 pub fn assemble(mut frames: Vec<Frame>) -> Result<(Grid, Vec<f32>, Vec<String>), SeriesError> {
@@ -260,6 +313,7 @@ pub fn assemble(mut frames: Vec<Frame>) -> Result<(Grid, Vec<f32>, Vec<String>),
             format!("{} frame {}", f.file.display(), f.frame)
         }
     };
+    check_formats(&frames)?;
     // Orientation: every frame parallel to the first.
     let mut orientations: Vec<(&[f64; 6], String)> = Vec::new();
     for f in &frames {
@@ -416,8 +470,34 @@ mod tests {
             orientation,
             pixel_spacing: [0.5, 0.25],
             slice_thickness: Some(2.0),
+            format: format(16),
             pixels: vec![z as f32; 6],
         }
+    }
+
+    fn format(bits: u16) -> PixelFormat {
+        PixelFormat {
+            rows: 2,
+            cols: 3,
+            samples_per_pixel: 1,
+            bits_allocated: bits,
+            bits_stored: bits,
+            pixel_representation: 0,
+            photometric: "MONOCHROME2".into(),
+        }
+    }
+
+    #[test]
+    fn a_slice_in_another_pixel_format_is_named() {
+        let mut frames: Vec<Frame> = (0..4).map(|k| frame(2.0 * k as f64, AXIAL)).collect();
+        frames[2].format = format(8);
+        let err = assemble(frames).unwrap_err();
+        assert!(matches!(err, SeriesError::Format(_)), "{err}");
+        assert_eq!(
+            err.to_string(),
+            "slices differ in pixel format: slice_4.dcm has BitsAllocated 8, BitsStored 8, \
+             but 3 other files have BitsAllocated 16, BitsStored 16"
+        );
     }
 
     const AXIAL: [f64; 6] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0];

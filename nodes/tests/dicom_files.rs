@@ -634,6 +634,34 @@ fn a_pixel_data_length_beyond_the_file_is_refused_without_reading_it() {
     }
 }
 
+#[test]
+fn a_garbled_vr_hiding_a_huge_length_is_refused_without_reading_it() {
+    // Found by tests/fuzz.rs: bytes 1156-1159 of a CT slice overwritten, so
+    // that (0018,0090) DS becomes (0018,FFF0) with VR bytes FF FF. dicom-rs
+    // reads an unknown VR as UN, with a 4-byte length: 776 MB here.
+    let t = tempfile::tempdir().unwrap();
+    let series = data("series_CT5N_98892001");
+    for name in ["2062", "2392", "2693", "3023", "3353"] {
+        let mut bytes = std::fs::read(series.join(name)).unwrap();
+        if name == "3023" {
+            bytes[1156..1160].copy_from_slice(&0xFFFF_FFF0u32.to_le_bytes());
+        }
+        std::fs::write(t.path().join(name), bytes).unwrap();
+    }
+    let before = peak_rss_mb(true);
+    let dir = t.path().to_path_buf();
+    let result = std::thread::spawn(move || load_series(&dir, None))
+        .join()
+        .expect("no panic");
+    let after = peak_rss_mb(false);
+    eprintln!("peak RSS: {before:?} MB before the load, {after:?} MB after");
+    let msg = result.unwrap_err().to_string();
+    assert!(msg.contains("3023"), "{msg}");
+    if let Some(after) = after {
+        assert!(after < 300.0, "peak RSS {after} MB");
+    }
+}
+
 /// A 4 x 3 axial MR slice at `z` (16-bit unsigned, explicit VR little
 /// endian, full geometry, RescaleSlope 1), changed by `edit` before it is
 /// written.

@@ -103,8 +103,12 @@ pub struct IcpResult {
     pub trace: Vec<IcpStep>,
 }
 
+/// Pairs per partial sum of the point-to-plane normal equations.
+const REDUCTION_CHUNK: usize = 4096;
+
 /// Registers `source` onto `target` (whose k-d tree is `tree`; normals needed
-/// for point-to-plane), starting from `init`.
+/// for point-to-plane), starting from `init`. The same inputs give the same
+/// bits on any number of threads.
 pub fn icp(
     source: &[Point3<f64>],
     target: &[Point3<f64>],
@@ -176,26 +180,30 @@ pub fn icp(
                 }
                 IcpMethod::PointToPlane => {
                     let normals = target_normals.expect("checked above");
-                    let (ata, atb) = pairs
-                        .par_iter()
-                        .map(|&(i, j, _)| {
-                            let (m, q, n) = (moved[i], target[j], normals[j]);
-                            let r = n.dot(&(m - q));
-                            let w = p.kernel.weight(r);
-                            let row = Vector6::new(
-                                m.coords.cross(&n).x,
-                                m.coords.cross(&n).y,
-                                m.coords.cross(&n).z,
-                                n.x,
-                                n.y,
-                                n.z,
-                            );
-                            (row * row.transpose() * w, row * (r * w))
+                    // Sums over fixed chunks in parallel, then the chunks in
+                    // order: the same bits on any number of threads (rayon's
+                    // own reduce splits by the thread count).
+                    let partials: Vec<(Matrix6<f64>, Vector6<f64>)> = pairs
+                        .par_chunks(REDUCTION_CHUNK)
+                        .map(|chunk| {
+                            chunk.iter().fold(
+                                (Matrix6::zeros(), Vector6::zeros()),
+                                |(ata, atb), &(i, j, _)| {
+                                    let (m, q, n) = (moved[i], target[j], normals[j]);
+                                    let r = n.dot(&(m - q));
+                                    let w = p.kernel.weight(r);
+                                    let c = m.coords.cross(&n);
+                                    let row = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
+                                    (ata + row * row.transpose() * w, atb + row * (r * w))
+                                },
+                            )
                         })
-                        .reduce(
-                            || (Matrix6::zeros(), Vector6::zeros()),
-                            |a, b| (a.0 + b.0, a.1 + b.1),
-                        );
+                        .collect();
+                    let (ata, atb) = partials
+                        .iter()
+                        .fold((Matrix6::zeros(), Vector6::zeros()), |(a, b), (pa, pb)| {
+                            (a + pa, b + pb)
+                        });
                     ata.cholesky().map(|c| {
                         let x = c.solve(&(-atb));
                         Isometry3::from_parts(
@@ -279,6 +287,56 @@ mod tests {
     #[test]
     fn point_to_plane_converges_from_10_deg_and_10_mm_on_a_partial_view() {
         check(IcpMethod::PointToPlane, true, 10.0, 10.0);
+    }
+
+    #[test]
+    fn the_same_clouds_give_the_same_bits_on_any_thread_count() {
+        // Enough pairs for several reduction chunks and rayon splits.
+        let target = super::super::cloud::bumpy_ellipsoid(30_000, 0.5);
+        let normals = estimate_normals(&target, 10, None);
+        let tree = Nearest::new(&target).unwrap();
+        let offset = Isometry3::new(Vector3::new(2.0, -1.0, 0.5), Vector3::new(0.0, 0.02, 0.03));
+        let source: Vec<Point3<f64>> = super::super::cloud::bumpy_ellipsoid(20_000, 0.25)
+            .iter()
+            .map(|p| offset * p)
+            .collect();
+        let bits = |threads: usize, method: IcpMethod| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let params = IcpParams {
+                method,
+                max_distance_mm: 10.0,
+                trim_ratio: 0.9,
+                kernel: Kernel::Huber(1.0),
+                max_iterations: 8,
+                tolerance: 0.0,
+                voxel_sizes_mm: vec![],
+            };
+            let r = pool
+                .install(|| {
+                    icp(
+                        &source,
+                        &target,
+                        Some(&normals),
+                        &tree,
+                        &Isometry3::identity(),
+                        &params,
+                    )
+                })
+                .unwrap();
+            let m = r.transform.to_homogeneous();
+            (
+                m.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+                r.rmse_mm.to_bits(),
+            )
+        };
+        for method in [IcpMethod::PointToPlane, IcpMethod::PointToPoint] {
+            let one = bits(1, method);
+            assert_eq!(bits(2, method), one, "{method:?}");
+            assert_eq!(bits(3, method), one, "{method:?}");
+        }
     }
 
     #[test]

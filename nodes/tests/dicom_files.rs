@@ -662,6 +662,33 @@ fn a_garbled_vr_hiding_a_huge_length_is_refused_without_reading_it() {
     }
 }
 
+#[test]
+fn a_huge_length_inside_a_defined_length_item_is_refused_without_reading_it() {
+    // Found by tests/fuzz.rs: in CT_small.dcm the VR of an element inside a
+    // defined-length sequence item garbled ("LO" -> "L\x9f"), read as UN with
+    // a 875 MB length; the length check must walk into such items too.
+    let t = tempfile::tempdir().unwrap();
+    let mut bytes = std::fs::read(data("CT_small.dcm")).unwrap();
+    assert_eq!(&bytes[1042..1044], b"LO");
+    bytes[1043] = 0x9f;
+    let path = t.path().join("garbled_item.dcm");
+    std::fs::write(&path, bytes).unwrap();
+    let before = peak_rss_mb(true);
+    let result = std::thread::spawn(move || load_series(&path, None))
+        .join()
+        .expect("no panic");
+    let after = peak_rss_mb(false);
+    eprintln!("peak RSS: {before:?} MB before the load, {after:?} MB after");
+    let msg = result.unwrap_err().to_string();
+    assert!(
+        msg.contains("garbled_item.dcm") && msg.contains("declares"),
+        "{msg}"
+    );
+    if let Some(after) = after {
+        assert!(after < 300.0, "peak RSS {after} MB");
+    }
+}
+
 /// A 4 x 3 axial MR slice at `z` (16-bit unsigned, explicit VR little
 /// endian, full geometry, RescaleSlope 1), changed by `edit` before it is
 /// written.

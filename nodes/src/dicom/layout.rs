@@ -114,6 +114,18 @@ fn long_vr(vr: [u8; 2]) -> bool {
     )
 }
 
+/// Whether an element is a sequence: by its VR, or in implicit VR by the
+/// dictionary, as a parser decides.
+fn is_sequence(tag: Tag, vr: Option<[u8; 2]>) -> bool {
+    use dicom_core::dictionary::{DataDictionary, DataDictionaryEntry};
+    match vr {
+        Some(vr) => &vr == b"SQ",
+        None => dicom_dictionary_std::StandardDataDictionary
+            .by_tag(tag)
+            .is_some_and(|e| e.vr().relaxed() == dicom_core::VR::SQ),
+    }
+}
+
 struct Walker<R> {
     r: BufReader<R>,
     pos: u64,
@@ -298,11 +310,19 @@ pub fn scan_layout<R: Read + Seek>(r: R, file_len: u64) -> Result<Option<Layout>
         EXPLICIT_BE => Syntax::ExplicitBe,
         _ => Syntax::ExplicitLe,
     };
-    // Open containers of undefined length, each with the syntax inside it
-    // (an undefined-length UN holds implicit VR little endian) and whether it
-    // is the top-level PixelData.
-    let mut open: Vec<(Syntax, bool)> = Vec::new();
+    // Open containers (sequences and items), each with the syntax inside it
+    // (an undefined-length UN holds implicit VR little endian), whether it is
+    // the top-level PixelData, and where it ends when its length is defined.
+    // Defined-length sequences and items are walked too: a parser reads the
+    // elements inside them, so their lengths need the same check.
+    let mut open: Vec<(Syntax, bool, Option<u64>)> = Vec::new();
     loop {
+        while open
+            .last()
+            .is_some_and(|c| c.2.is_some_and(|end| w.pos >= end))
+        {
+            open.pop();
+        }
         let syntax = open.last().map_or(base, |c| c.0);
         let in_pixel_data = open.first().is_some_and(|c| c.1);
         let Some((tag, vr, len)) = w.header(syntax) else {
@@ -310,11 +330,16 @@ pub fn scan_layout<R: Read + Seek>(r: R, file_len: u64) -> Result<Option<Layout>
         };
         if tag.group() == 0xFFFE {
             match tag.element() {
-                0xE000 if len == UNDEFINED => open.push((syntax, in_pixel_data)),
+                0xE000 if len == UNDEFINED => open.push((syntax, in_pixel_data, None)),
                 0xE000 => {
                     w.check(tag, len, in_pixel_data, &ts)?;
-                    if w.skip(len).is_err() {
-                        break;
+                    if in_pixel_data {
+                        // A fragment: bytes, not elements.
+                        if w.skip(len).is_err() {
+                            break;
+                        }
+                    } else {
+                        open.push((syntax, false, Some(w.pos + len as u64)));
                     }
                 }
                 // Item or sequence delimiter: closes the innermost container.
@@ -334,7 +359,7 @@ pub fn scan_layout<R: Read + Seek>(r: R, file_len: u64) -> Result<Option<Layout>
             } else {
                 syntax
             };
-            open.push((inner, top_pixel_data));
+            open.push((inner, top_pixel_data, None));
             continue;
         }
         if top_pixel_data {
@@ -343,6 +368,10 @@ pub fn scan_layout<R: Read + Seek>(r: R, file_len: u64) -> Result<Option<Layout>
         w.check(tag, len, in_pixel_data || top_pixel_data, &ts)?;
         if !top_pixel_data {
             w.check_vr(tag, vr, len, &ts)?;
+        }
+        if is_sequence(tag, vr) {
+            open.push((syntax, false, Some(w.pos + len as u64)));
+            continue;
         }
         if w.skip(len).is_err() {
             break;

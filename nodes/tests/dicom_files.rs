@@ -689,6 +689,32 @@ fn a_huge_length_inside_a_defined_length_item_is_refused_without_reading_it() {
     }
 }
 
+#[test]
+fn a_garbled_delimiter_with_a_huge_length_is_refused_without_reading_it() {
+    // Found by tests/fuzz.rs: 4 bytes inserted into an item delimiter of a CT
+    // slice made (FFFE,DE0D) with a 3.7 GB length.
+    let t = tempfile::tempdir().unwrap();
+    let mut bytes = std::fs::read(data("series_CT5N_98892001").join("3023")).unwrap();
+    assert_eq!(&bytes[3380..3384], &[0xfe, 0xff, 0x0d, 0xe0]);
+    bytes.splice(3383..3383, [0xde, 0x3f, 0xe7, 0xbf]);
+    let path = t.path().join("garbled_delimiter.dcm");
+    std::fs::write(&path, bytes).unwrap();
+    let before = peak_rss_mb(true);
+    let result = std::thread::spawn(move || load_series(&path, None))
+        .join()
+        .expect("no panic");
+    let after = peak_rss_mb(false);
+    eprintln!("peak RSS: {before:?} MB before the load, {after:?} MB after");
+    let msg = result.unwrap_err().to_string();
+    assert!(
+        msg.contains("garbled_delimiter.dcm") && msg.contains("declares"),
+        "{msg}"
+    );
+    if let Some(after) = after {
+        assert!(after < 300.0, "peak RSS {after} MB");
+    }
+}
+
 /// A 4 x 3 axial MR slice at `z` (16-bit unsigned, explicit VR little
 /// endian, full geometry, RescaleSlope 1), changed by `edit` before it is
 /// written.

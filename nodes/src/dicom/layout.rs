@@ -343,8 +343,17 @@ pub fn scan_layout<R: Read + Seek>(r: R, file_len: u64) -> Result<Option<Layout>
                     }
                 }
                 // Item or sequence delimiter: closes the innermost container.
-                _ => {
+                0xE00D | 0xE0DD => {
                     open.pop();
+                }
+                // No other element of group FFFE exists; a parser still takes
+                // its length (a garbled delimiter declared 3.7 GB, found by
+                // fuzzing).
+                _ => {
+                    w.check(tag, len, in_pixel_data, &ts)?;
+                    if w.skip(len).is_err() {
+                        break;
+                    }
                 }
             }
             continue;

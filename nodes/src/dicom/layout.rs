@@ -229,7 +229,7 @@ impl<R: Read + Seek> Walker<R> {
             b"FD" | b"SV" | b"UV" | b"OD" | b"OV" => 8,
             _ => return Ok(()),
         };
-        if len == UNDEFINED || len % size == 0 {
+        if len == UNDEFINED || len.is_multiple_of(size) {
             return Ok(());
         }
         Err(LengthError {

@@ -111,6 +111,15 @@ pub struct DiskCache {
 
 static TEMP_COUNTER: AtomicU64 = AtomicU64::new(0);
 
+/// How a stored `Path` inside the cache starts (never a real path: relative).
+const CACHE_ROOT: &str = "$CACHE";
+
+#[derive(Clone, Copy)]
+enum PathsTo {
+    Relative,
+    Absolute,
+}
+
 impl DiskCache {
     /// A cache rooted at `dir` (created if missing).
     pub fn open(dir: &Path) -> io::Result<DiskCache> {
@@ -142,7 +151,7 @@ impl DiskCache {
         let path = self.entry_path(key);
         match std::fs::read(&path) {
             Ok(bytes) => match decode_entry(&bytes, key) {
-                Ok(entry) => Lookup::Hit(entry),
+                Ok(entry) => Lookup::Hit(self.with_paths(entry, PathsTo::Absolute)),
                 Err(why) => Lookup::Corrupt(format!("{}: {why}", path.display())),
             },
             Err(e) if e.kind() == io::ErrorKind::NotFound => Lookup::Miss,
@@ -161,12 +170,41 @@ impl DiskCache {
             std::process::id(),
             TEMP_COUNTER.fetch_add(1, Ordering::Relaxed)
         ));
-        let bytes = encode_entry(key, entry);
+        let bytes = encode_entry(key, &self.with_paths(entry.clone(), PathsTo::Relative));
         let result = std::fs::write(&temp, &bytes).and_then(|()| std::fs::rename(&temp, &path));
         if result.is_err() {
             let _ = std::fs::remove_file(&temp);
         }
         result
+    }
+
+    /// The entry with its `Path` outputs inside this cache written relative
+    /// to it (`$CACHE/files/<key>/...`) or resolved back: so a cache copied or
+    /// moved elsewhere (another machine's mount) reads its own files, not the
+    /// original's, and does not regenerate them.
+    fn with_paths(&self, mut entry: CacheEntry, to: PathsTo) -> CacheEntry {
+        for value in entry.outputs.0.values_mut() {
+            let Value::Path(p) = value else { continue };
+            let moved = match to {
+                PathsTo::Relative => p
+                    .path
+                    .strip_prefix(&self.dir)
+                    .ok()
+                    .map(|rel| Path::new(CACHE_ROOT).join(rel)),
+                PathsTo::Absolute => p
+                    .path
+                    .strip_prefix(CACHE_ROOT)
+                    .ok()
+                    .map(|rel| self.dir.join(rel)),
+            };
+            if let Some(path) = moved {
+                *value = Value::Path(Arc::new(crate::value::PathValue {
+                    path,
+                    content_hash: p.content_hash.clone(),
+                }));
+            }
+        }
+        entry
     }
 
     /// Removes the entry for `key`, if any.

@@ -472,3 +472,35 @@ fn generated_files_live_in_the_cache_under_the_node_key() {
         "--no-cache leaves no files behind"
     );
 }
+
+#[test]
+fn a_moved_cache_reads_its_own_files_and_recomputes_nothing() {
+    let t = tempfile::tempdir().unwrap();
+    let (reg, counters) = registry();
+    let g = write_graph(
+        t.path(),
+        "g.toml",
+        "[node.gen]\nop = \"test.generate\"\nfiles = 3\n",
+    );
+    let (old, new) = (t.path().join("cache"), t.path().join("elsewhere/cache"));
+    let out = t.path().join("out");
+    run_file(&reg, &g, &[], Some(&old), &out).unwrap();
+    std::fs::create_dir_all(new.parent().unwrap()).unwrap();
+    std::fs::rename(&old, &new).unwrap();
+    let moved = run_file(&reg, &g, &[], Some(&new), &out).unwrap();
+    assert_eq!(statuses(&moved)["gen"], Cached);
+    assert_eq!(counters.runs("gen"), 1, "nothing regenerated");
+    let dir = match &moved.results[0].as_ref().unwrap().outputs.0["dir"] {
+        fusegraph_engine::Value::Path(p) => p.path.clone(),
+        other => panic!("{other:?}"),
+    };
+    assert!(
+        dir.starts_with(std::path::absolute(&new).unwrap()),
+        "{} is not in the moved cache",
+        dir.display()
+    );
+    assert_eq!(
+        std::fs::read_to_string(dir.join("slice2.txt")).unwrap(),
+        "slice 2"
+    );
+}

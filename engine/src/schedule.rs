@@ -53,6 +53,7 @@ pub fn run_graph(
             format!("output folder {}: {e}", options.out_dir.display()),
         )
     })?;
+    crate::workdir::Staging::clean_stale(&options.out_dir);
     let start = Instant::now();
     let n = graph.nodes.len();
     let mut successors: Vec<BTreeSet<usize>> = vec![BTreeSet::new(); n];
@@ -236,8 +237,16 @@ impl<'a> Executor<'a> {
             Some(disk) => disk.files_root(),
             None => self.options.out_dir.join(".work"),
         };
-        let mut ctx =
-            RunCtx::new(&node.id, &self.options.out_dir).with_files(&files_root, &key.hex());
+        // Sinks write into a staging folder, published only on success.
+        let staging = node
+            .op
+            .spec()
+            .writes_output
+            .then(|| crate::workdir::Staging::new(&self.options.out_dir, &key.hex()));
+        let sink_dir = staging
+            .as_ref()
+            .map_or(self.options.out_dir.as_path(), |s| s.dir());
+        let mut ctx = RunCtx::new(&node.id, sink_dir).with_files(&files_root, &key.hex());
         let outcome = catch_unwind(AssertUnwindSafe(|| {
             node.op.run(&inputs, &node.params, &mut ctx)
         }));
@@ -262,6 +271,17 @@ impl<'a> Executor<'a> {
                 .map_err(|e| e.to_string()),
             (Err(e), Some(files)) => {
                 files.discard();
+                Err(e)
+            }
+            (result, None) => result,
+        };
+        let result = match (result, staging) {
+            (Ok(mut outputs), Some(staging)) => staging
+                .publish(&mut outputs)
+                .map(|()| outputs)
+                .map_err(|e| e.to_string()),
+            (Err(e), Some(staging)) => {
+                staging.discard();
                 Err(e)
             }
             (result, None) => result,

@@ -51,14 +51,20 @@ fn process_alive(pid: u32) -> bool {
 /// `.tmp-<key>-<host>-<pid>-<n>` of this host whose pid is gone. Returns how
 /// many it removed.
 pub fn clean_stale_temps(files_root: &Path) -> usize {
-    let Ok(entries) = std::fs::read_dir(files_root) else {
+    clean_stale(files_root, ".tmp-")
+}
+
+/// Removes `<prefix><key>-<host>-<pid>-<n>` folders under `dir` that dead
+/// processes of this host left.
+fn clean_stale(dir: &Path, prefix: &str) -> usize {
+    let Ok(entries) = std::fs::read_dir(dir) else {
         return 0;
     };
     let host = host_name();
     let mut removed = 0;
     for entry in entries.flatten() {
         let name = entry.file_name().to_string_lossy().into_owned();
-        let Some(rest) = name.strip_prefix(".tmp-") else {
+        let Some(rest) = name.strip_prefix(prefix) else {
             continue;
         };
         // <key>-<host>-<pid>-<n>; the host may hold '-' only as '_'.
@@ -163,6 +169,77 @@ impl WorkDir {
     }
 }
 
+/// A sink's private output folder, `OUT/.staging-<key>-<host>-<pid>-<n>`:
+/// the sink writes there, and only when it succeeds are its files renamed
+/// into the output folder, each whole (a full disk or a failure leaves no
+/// partial file under a sink's name).
+#[derive(Debug)]
+pub struct Staging {
+    dir: PathBuf,
+    out_dir: PathBuf,
+}
+
+impl Staging {
+    /// A staging folder for the sink of key `key_hex` (created when written).
+    pub fn new(out_dir: &Path, key_hex: &str) -> Self {
+        let out_dir = std::path::absolute(out_dir).unwrap_or_else(|_| out_dir.to_path_buf());
+        let dir = out_dir.join(format!(
+            ".staging-{key_hex}-{}-{}-{}",
+            host_name(),
+            std::process::id(),
+            COUNTER.fetch_add(1, Ordering::Relaxed)
+        ));
+        Staging { dir, out_dir }
+    }
+
+    /// Where the sink writes.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Renames every file written into its place under the output folder and
+    /// points `outputs` there.
+    pub fn publish(self, outputs: &mut Outputs) -> Result<(), OpError> {
+        let result = move_files(&self.dir, &self.dir, &self.out_dir);
+        if result.is_ok() {
+            *outputs = rewrite(outputs, &self.dir, &self.out_dir);
+        }
+        let _ = std::fs::remove_dir_all(&self.dir);
+        result
+    }
+
+    /// Removes what the sink wrote (after a failure).
+    pub fn discard(self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+
+    /// Removes staging folders that dead processes of this host left in
+    /// `out_dir`.
+    pub fn clean_stale(out_dir: &Path) -> usize {
+        clean_stale(out_dir, ".staging-")
+    }
+}
+
+/// Renames the files under `dir` (recursively) from `root` to `to`.
+fn move_files(dir: &Path, root: &Path, to: &Path) -> Result<(), OpError> {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Ok(()); // the sink wrote nothing
+    };
+    for entry in entries {
+        let path = entry.map_err(|e| OpError::io(dir, e))?.path();
+        if path.is_dir() {
+            move_files(&path, root, to)?;
+            continue;
+        }
+        let target = to.join(path.strip_prefix(root).expect("under the staging folder"));
+        if let Some(parent) = target.parent() {
+            std::fs::create_dir_all(parent).map_err(|e| OpError::io(parent, e))?;
+        }
+        std::fs::rename(&path, &target).map_err(|e| OpError::io(&target, e))?;
+    }
+    Ok(())
+}
+
 /// `outputs` with every `Path` under `from` moved under `to`.
 fn rewrite(outputs: &Outputs, from: &Path, to: &Path) -> Outputs {
     let mut out = outputs.clone();
@@ -193,6 +270,39 @@ fn outputs_hold(outputs: &Outputs) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn staged_files_appear_whole_on_success_and_not_at_all_on_failure() {
+        let out = tempfile::tempdir().unwrap();
+        let write = |s: &Staging| {
+            let f = s.dir().join("mesh/skin.ply");
+            std::fs::create_dir_all(f.parent().unwrap()).unwrap();
+            std::fs::write(&f, "ply").unwrap();
+            f
+        };
+        let failed = Staging::new(out.path(), "ab");
+        write(&failed);
+        failed.discard();
+        assert!(!out.path().join("mesh/skin.ply").exists());
+        let good = Staging::new(out.path(), "ab");
+        let staged = write(&good);
+        let mut outputs = Outputs::new().with(
+            "file",
+            PathValue {
+                path: staged,
+                content_hash: "h".into(),
+            },
+        );
+        good.publish(&mut outputs).unwrap();
+        let final_path = std::path::absolute(out.path().join("mesh/skin.ply")).unwrap();
+        assert_eq!(std::fs::read_to_string(&final_path).unwrap(), "ply");
+        match &outputs.0["file"] {
+            Value::Path(p) => assert_eq!(p.path, final_path),
+            other => panic!("{other:?}"),
+        }
+        let left: Vec<_> = std::fs::read_dir(out.path()).unwrap().flatten().collect();
+        assert_eq!(left.len(), 1, "only mesh/ remains: {left:?}");
+    }
 
     #[cfg(target_os = "linux")]
     #[test]

@@ -504,3 +504,34 @@ fn a_moved_cache_reads_its_own_files_and_recomputes_nothing() {
         "slice 2"
     );
 }
+
+#[test]
+fn a_sink_publishes_its_files_and_leaves_no_staging_folder() {
+    let t = tempfile::tempdir().unwrap();
+    let (reg, _) = registry();
+    let g = write_graph(
+        t.path(),
+        "g.toml",
+        "[node.a]\nop = \"test.source\"\nvalue = 2.0\n\n\
+         [node.w]\nop = \"test.write\"\nin.value = \"a.value\"\nfile = \"sub/value.txt\"\n",
+    );
+    let out = t.path().join("out");
+    let r = run_file(&reg, &g, &[], None, &out).unwrap();
+    assert!(r.report.succeeded());
+    assert!(out.join("sub/value.txt").is_file());
+    let staging: Vec<_> = std::fs::read_dir(&out)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().starts_with(".staging-"))
+        .collect();
+    assert!(staging.is_empty(), "staging folders left: {staging:?}");
+    match &r.results[1].as_ref().unwrap().outputs.0["file"] {
+        fusegraph_engine::Value::Path(p) => {
+            assert_eq!(
+                p.path,
+                std::path::absolute(out.join("sub/value.txt")).unwrap()
+            )
+        }
+        other => panic!("{other:?}"),
+    }
+}

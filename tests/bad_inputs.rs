@@ -105,3 +105,88 @@ fn a_cache_entry_copied_over_another_nodes_is_recomputed() {
     assert_eq!(again["nodes"]["verging_deg"]["status"], "ran");
     assert_eq!(again["metrics"], first["metrics"]);
 }
+
+/// A PNG file of a few dozen bytes whose header declares `w x h` pixels
+/// (the first rows only, compressed).
+fn png_bomb(w: u32, h: u32) -> Vec<u8> {
+    let mut ihdr = b"IHDR".to_vec();
+    ihdr.extend(w.to_be_bytes());
+    ihdr.extend(h.to_be_bytes());
+    ihdr.extend([8, 0, 0, 0, 0]);
+    let mut png = b"\x89PNG\r\n\x1a\n".to_vec();
+    let mut chunk = |body: &[u8]| {
+        png.extend(((body.len() - 4) as u32).to_be_bytes());
+        png.extend(body);
+        png.extend(crc32(body).to_be_bytes());
+    };
+    chunk(&ihdr);
+    // A stored (uncompressed) zlib block of 64 zero bytes.
+    let mut idat = b"IDAT\x78\x01\x01\x40\x00\xbf\xff".to_vec();
+    idat.extend([0u8; 64]);
+    idat.extend(adler32(&[0u8; 64]).to_be_bytes());
+    chunk(&idat);
+    chunk(b"IEND");
+    png
+}
+
+fn crc32(bytes: &[u8]) -> u32 {
+    let mut c = !0u32;
+    for &b in bytes {
+        c ^= b as u32;
+        for _ in 0..8 {
+            c = if c & 1 != 0 {
+                0xEDB8_8320 ^ (c >> 1)
+            } else {
+                c >> 1
+            };
+        }
+    }
+    !c
+}
+
+fn adler32(bytes: &[u8]) -> u32 {
+    let (mut a, mut b) = (1u32, 0u32);
+    for &x in bytes {
+        a = (a + x as u32) % 65521;
+        b = (b + a) % 65521;
+    }
+    (b << 16) | a
+}
+
+#[cfg(target_os = "linux")]
+#[test]
+fn a_decompression_bomb_fails_clearly_under_a_memory_limit() {
+    use std::os::unix::process::CommandExt;
+    let t = tempfile::tempdir().unwrap();
+    std::fs::write(t.path().join("bomb.png"), png_bomb(20_000, 20_000)).unwrap();
+    std::fs::write(
+        t.path().join("g.toml"),
+        "[node.img]\nop = \"io.read_image\"\npath = \"bomb.png\"\n",
+    )
+    .unwrap();
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_fusegraph"));
+    cmd.args(["run", "g.toml", "--no-cache"])
+        .current_dir(t.path());
+    // SAFETY: setrlimit is async-signal-safe; the child only calls it
+    // between fork and exec.
+    unsafe {
+        cmd.pre_exec(|| {
+            let limit = libc::rlimit {
+                rlim_cur: 1 << 30,
+                rlim_max: 1 << 30,
+            };
+            if libc::setrlimit(libc::RLIMIT_AS, &limit) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    let o = cmd.output().unwrap();
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(e.contains("bomb.png: declares 20000 x 20000 px"), "{e}");
+    assert!(
+        t.path().join("out/g/report.json").is_file(),
+        "a report is written"
+    );
+}

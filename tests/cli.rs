@@ -208,6 +208,22 @@ fn concurrent_processes_share_one_cache() {
         let o = c.wait_with_output().unwrap();
         assert!(o.status.success(), "{}", stderr(&o));
     }
+    // Leases: each key was computed by exactly one of the four processes
+    // (nodes with equal ops, parameters and inputs share a key); the others
+    // waited for its entry and reused it.
+    let mut runs: std::collections::BTreeMap<String, usize> = Default::default();
+    for i in 0..4 {
+        let r = report(&t.path().join(format!("out{i}")));
+        for n in r["nodes"].as_object().unwrap().values() {
+            let count = runs
+                .entry(n["key"].as_str().unwrap().to_string())
+                .or_default();
+            *count += (n["status"] == "ran") as usize;
+        }
+    }
+    for (key, ran) in &runs {
+        assert_eq!(*ran, 1, "key {key} was computed {ran} times");
+    }
     let o = fusegraph(&["run", "wide.toml"], t.path());
     assert!(o.status.success());
     assert!(!stderr(&o).contains("corrupt"), "{}", stderr(&o));

@@ -135,6 +135,11 @@ impl DiskCache {
         Ok(cache)
     }
 
+    /// Where the lease on computing `key` lives (see [`crate::lease`]).
+    pub fn lease_path(&self, key: &NodeKey) -> PathBuf {
+        self.dir.join("leases").join(format!("{}.lease", key.hex()))
+    }
+
     /// The folder holding the files of nodes that produce files, by key.
     pub fn files_root(&self) -> PathBuf {
         self.dir.join("files")

@@ -14,6 +14,7 @@ pub mod figure;
 pub mod graph;
 pub mod hash;
 pub mod key;
+pub mod lease;
 pub mod op;
 pub mod param;
 pub mod registry;

@@ -220,17 +220,26 @@ impl<'a> Executor<'a> {
             inputs.0.insert(e.port.clone(), value.clone());
         }
 
-        if let Some(entry) = self.lookup(&node.id, node.op.spec(), &key) {
+        let cached = |entry: Arc<CacheEntry>| {
             tracing::info!(node = %node.id, "cached");
-            return Slot {
+            Slot {
                 report: NodeReport {
                     figures: entry.figures.clone(),
                     notes: entry.notes.clone(),
                     ..report(NodeStatus::Cached, entry.metrics.clone(), None)
                 },
                 entry: Some(entry),
-            };
+            }
+        };
+        if let Some(entry) = self.lookup(&node.id, node.op.spec(), &key) {
+            return cached(entry);
         }
+        // One process computes a key; others running the same key at the
+        // same time wait for its entry. Held until this node's entry is stored.
+        let _lease = match self.lease(&node.id, node.op.spec(), &key) {
+            Ok(lease) => lease,
+            Err(entry) => return cached(entry),
+        };
 
         self.set_running(&node.id, true);
         let files_root = match &self.options.cache {
@@ -332,6 +341,52 @@ impl<'a> Executor<'a> {
         Slot {
             report,
             entry: None,
+        }
+    }
+
+    /// The lease on computing `key`, or the entry another process computed
+    /// while this one waited for its lease. Without a disk cache, or where
+    /// leases cannot be written (a read-only cache), no lease is needed.
+    fn lease(
+        &self,
+        id: &str,
+        spec: &crate::op::OpSpec,
+        key: &NodeKey,
+    ) -> Result<Option<crate::lease::Lease>, Arc<CacheEntry>> {
+        let Some(disk) = &self.options.cache else {
+            return Ok(None);
+        };
+        let path = disk.lease_path(key);
+        let start = Instant::now();
+        let mut told = false;
+        loop {
+            match crate::lease::try_acquire(&path) {
+                Ok(crate::lease::Acquired::Held(lease)) => {
+                    // The owner before us may have stored it just now.
+                    return match self.lookup(id, spec, key) {
+                        Some(entry) => Err(entry),
+                        None => Ok(Some(lease)),
+                    };
+                }
+                Ok(crate::lease::Acquired::Busy) => {}
+                Err(e) => {
+                    tracing::debug!(node = %id, "no lease ({e}); computing without one");
+                    return Ok(None);
+                }
+            }
+            if let Some(entry) = self.lookup(id, spec, key) {
+                return Err(entry);
+            }
+            if !told {
+                tracing::info!(node = %id, "another run is computing this key; waiting for it");
+                told = true;
+            }
+            // A live owner that never finishes must not hang this run forever.
+            if start.elapsed() > crate::lease::FOREIGN_STALE {
+                tracing::warn!(node = %id, "gave up waiting for another run's lease");
+                return Ok(None);
+            }
+            std::thread::sleep(std::time::Duration::from_millis(50));
         }
     }
 

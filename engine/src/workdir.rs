@@ -14,7 +14,7 @@ static COUNTER: AtomicU64 = AtomicU64::new(0);
 /// This machine's name as it appears in temporary folder names (letters,
 /// digits, `.` and `_` only), so that on a shared cache a process cleans only
 /// what its own machine's dead processes left.
-fn host_name() -> String {
+pub(crate) fn host_name() -> String {
     let raw = std::fs::read_to_string("/proc/sys/kernel/hostname")
         .or_else(|_| std::fs::read_to_string("/etc/hostname"))
         .unwrap_or_else(|_| "localhost".into());
@@ -38,7 +38,7 @@ fn host_name() -> String {
 
 /// Whether process `pid` of this machine is alive; `true` where that cannot
 /// be told (so nothing of a live process is ever removed).
-fn process_alive(pid: u32) -> bool {
+pub(crate) fn process_alive(pid: u32) -> bool {
     if cfg!(target_os = "linux") {
         Path::new("/proc").join(pid.to_string()).exists()
     } else {

@@ -323,6 +323,14 @@ impl RunCtx {
         self
     }
 
+    /// As [`RunCtx::with_files`], falling back to `fallback_root` when
+    /// `files_root` cannot be written (a read-only cache).
+    pub fn with_files_or(mut self, files_root: &Path, fallback_root: &Path, key_hex: &str) -> Self {
+        self.files =
+            Some(crate::workdir::WorkDir::new(files_root, key_hex).with_fallback(fallback_root));
+        self
+    }
+
     /// A folder for files the op produces as `Path` outputs (e.g. a generated
     /// DICOM series). It is private to this run of the node; when the op succeeds
     /// the engine moves it into the cache under the node's key and rewrites the

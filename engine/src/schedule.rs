@@ -255,12 +255,19 @@ impl<'a> Executor<'a> {
         let sink_dir = staging
             .as_ref()
             .map_or(self.options.out_dir.as_path(), |s| s.dir());
-        let mut ctx = RunCtx::new(&node.id, sink_dir).with_files(&files_root, &key.hex());
+        let mut ctx = RunCtx::new(&node.id, sink_dir).with_files_or(
+            &files_root,
+            &self.options.out_dir.join(".work"),
+            &key.hex(),
+        );
         let outcome = catch_unwind(AssertUnwindSafe(|| {
             node.op.run(&inputs, &node.params, &mut ctx)
         }));
         self.set_running(&node.id, false);
         let files = ctx.take_files();
+        if let Some(why) = files.as_ref().and_then(|f| f.fell_back()) {
+            ctx.note(format!("the cache's files folder cannot be written: {why}"));
+        }
         let spec = node.op.spec();
         let result = match outcome {
             Ok(Ok(outputs)) => check_outputs(spec, &outputs.0)

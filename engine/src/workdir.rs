@@ -92,6 +92,11 @@ pub struct WorkDir {
     temp: PathBuf,
     final_dir: PathBuf,
     created: bool,
+    key_hex: String,
+    /// Where to go when `files_root` cannot be written (a read-only cache).
+    fallback_root: Option<PathBuf>,
+    /// Why the fallback was taken, once it was.
+    fell_back: Option<String>,
 }
 
 impl WorkDir {
@@ -100,21 +105,51 @@ impl WorkDir {
         // Absolute, because `Path` values are absolute and are matched against it.
         let files_root =
             std::path::absolute(files_root).unwrap_or_else(|_| files_root.to_path_buf());
-        let temp = files_root.join(format!(
+        WorkDir {
+            temp: Self::temp_under(&files_root, key_hex),
+            final_dir: files_root.join(key_hex),
+            created: false,
+            key_hex: key_hex.to_string(),
+            fallback_root: None,
+            fell_back: None,
+        }
+    }
+
+    /// Writes under `root` instead when the files root cannot be written.
+    pub fn with_fallback(mut self, root: &Path) -> Self {
+        self.fallback_root = Some(std::path::absolute(root).unwrap_or_else(|_| root.to_path_buf()));
+        self
+    }
+
+    /// Why the files went to the fallback folder, if they did.
+    pub fn fell_back(&self) -> Option<&str> {
+        self.fell_back.as_deref()
+    }
+
+    fn temp_under(root: &Path, key_hex: &str) -> PathBuf {
+        root.join(format!(
             ".tmp-{key_hex}-{}-{}-{}",
             host_name(),
             std::process::id(),
             COUNTER.fetch_add(1, Ordering::Relaxed)
-        ));
-        WorkDir {
-            temp,
-            final_dir: files_root.join(key_hex),
-            created: false,
-        }
+        ))
     }
 
-    /// Creates the temporary folder (once) and returns it.
+    /// Creates the temporary folder (once) and returns it. Where the files
+    /// root cannot be written and a fallback is set, the folder goes there.
     pub fn create(&mut self) -> Result<PathBuf, OpError> {
+        if !self.created
+            && let Err(e) = std::fs::create_dir_all(&self.temp)
+            && let Some(root) = self.fallback_root.take()
+        {
+            self.fell_back = Some(format!(
+                "{}: {e}; its files are kept in {} instead",
+                self.temp.parent().unwrap_or(&self.temp).display(),
+                root.display()
+            ));
+            self.temp = Self::temp_under(&root, &self.key_hex);
+            self.final_dir = root.join(&self.key_hex);
+        }
         if !self.created {
             if self.temp.exists() {
                 std::fs::remove_dir_all(&self.temp).map_err(|e| OpError::io(&self.temp, e))?;

@@ -535,3 +535,40 @@ fn a_sink_publishes_its_files_and_leaves_no_staging_folder() {
         other => panic!("{other:?}"),
     }
 }
+
+#[test]
+fn an_unwritable_files_folder_falls_back_to_the_output_folder_with_a_note() {
+    let t = tempfile::tempdir().unwrap();
+    let (reg, _) = registry();
+    let g = write_graph(
+        t.path(),
+        "g.toml",
+        "[node.gen]\nop = \"test.generate\"\nfiles = 2\n",
+    );
+    let cache = t.path().join("cache");
+    let versioned = cache.join(format!("v{}", fusegraph_engine::cache::FORMAT_VERSION));
+    std::fs::create_dir_all(&versioned).unwrap();
+    // A file where the files folder should be: it cannot be created (as a
+    // read-only cache, which root would write anyway).
+    std::fs::write(versioned.join("files"), "not a folder").unwrap();
+    let out = t.path().join("out");
+    let r = run_file(&reg, &g, &[], Some(&cache), &out).unwrap();
+    assert!(r.report.succeeded(), "{:?}", r.report);
+    let notes = &r.report.node("gen").unwrap().notes;
+    assert!(
+        notes
+            .iter()
+            .any(|n| n.contains("cannot be written") && n.contains(".work")),
+        "{notes:?}"
+    );
+    let dir = match &r.results[0].as_ref().unwrap().outputs.0["dir"] {
+        fusegraph_engine::Value::Path(p) => p.path.clone(),
+        other => panic!("{other:?}"),
+    };
+    assert!(
+        dir.starts_with(std::path::absolute(out.join(".work")).unwrap()),
+        "{}",
+        dir.display()
+    );
+    assert!(dir.join("slice1.txt").is_file());
+}

@@ -19,7 +19,6 @@ use crate::value::{Reader, Value, Writer, encode_value};
 use std::collections::{BTreeMap, HashMap};
 use std::io;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 /// Version of the entry layout and of the value encoding; bump on any change.
@@ -109,8 +108,6 @@ pub struct DiskCache {
     dir: PathBuf,
 }
 
-static TEMP_COUNTER: AtomicU64 = AtomicU64::new(0);
-
 /// How a stored `Path` inside the cache starts (never a real path: relative).
 const CACHE_ROOT: &str = "$CACHE";
 
@@ -166,21 +163,8 @@ impl DiskCache {
 
     /// Writes the entry for `key` atomically (temporary file, then rename).
     pub fn store(&self, key: &NodeKey, entry: &CacheEntry) -> io::Result<()> {
-        let path = self.entry_path(key);
-        let folder = path.parent().expect("entry has a folder");
-        std::fs::create_dir_all(folder)?;
-        let temp = folder.join(format!(
-            ".{}.{}.{}.tmp",
-            key.hex(),
-            std::process::id(),
-            TEMP_COUNTER.fetch_add(1, Ordering::Relaxed)
-        ));
         let bytes = encode_entry(key, &self.with_paths(entry.clone(), PathsTo::Relative));
-        let result = std::fs::write(&temp, &bytes).and_then(|()| std::fs::rename(&temp, &path));
-        if result.is_err() {
-            let _ = std::fs::remove_file(&temp);
-        }
-        result
+        crate::atomic::write_atomically(&self.entry_path(key), &bytes)
     }
 
     /// The entry with its `Path` outputs inside this cache written relative

@@ -37,10 +37,7 @@ pub enum Acquired {
 
 /// Tries to take the lease at `path` (a stale one is removed and retaken).
 pub fn try_acquire(path: &Path) -> io::Result<Acquired> {
-    if let Some(parent) = path.parent() {
-        std::fs::create_dir_all(parent)?;
-    }
-    for _ in 0..2 {
+    for _ in 0..3 {
         match std::fs::OpenOptions::new()
             .write(true)
             .create_new(true)
@@ -58,6 +55,11 @@ pub fn try_acquire(path: &Path) -> io::Result<Acquired> {
                 }
                 let _ = std::fs::remove_file(path);
             }
+            // The leases folder is made on first use, not stat-ed every time.
+            Err(e) if e.kind() == io::ErrorKind::NotFound => match path.parent() {
+                Some(parent) => std::fs::create_dir_all(parent)?,
+                None => return Err(e),
+            },
             Err(e) => return Err(e),
         }
     }

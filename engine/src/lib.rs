@@ -6,6 +6,7 @@
 //! The engine knows nothing about MRI or cameras: node types come from the
 //! `fusegraph-nodes` crate or from plugins.
 
+pub mod atomic;
 pub mod cache;
 pub mod dot;
 pub mod each;

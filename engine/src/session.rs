@@ -67,7 +67,7 @@ pub fn run(
 
 /// Writes `report.json`, the nodes' figures under `figures/` and
 /// `report.html` into `out_dir`, each file whole or not at all (see
-/// [`write_atomically`]). A file that cannot be written does not stop the
+/// [`crate::atomic::write_atomically`]). A file that cannot be written does not stop the
 /// others; the error names every one that failed.
 pub fn write_report(
     report: &RunReport,
@@ -76,7 +76,7 @@ pub fn write_report(
 ) -> std::io::Result<()> {
     let mut failures: Vec<std::io::Error> = Vec::new();
     let mut write = |path: &Path, bytes: &[u8]| {
-        if let Err(e) = write_atomically(path, bytes) {
+        if let Err(e) = crate::atomic::write_atomically(path, bytes) {
             failures.push(e);
         }
     };
@@ -104,21 +104,4 @@ pub fn write_report(
             Err(std::io::Error::new(kind, all.join("; ")))
         }
     }
-}
-
-/// Writes `bytes` to `path` through a temporary file in the same folder and a
-/// rename, so that a reader (or a full disk) never leaves a partial file under
-/// the name; creates the folder. The error names the path.
-pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let named =
-        |e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: {e}", path.display()));
-    let folder = path.parent().unwrap_or(Path::new("."));
-    std::fs::create_dir_all(folder).map_err(named)?;
-    let name = path.file_name().unwrap_or_default().to_string_lossy();
-    let temp = folder.join(format!(".{name}.{}.tmp", std::process::id()));
-    let result = std::fs::write(&temp, bytes).and_then(|()| std::fs::rename(&temp, path));
-    if result.is_err() {
-        let _ = std::fs::remove_file(&temp);
-    }
-    result.map_err(named)
 }

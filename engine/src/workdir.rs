@@ -14,26 +14,29 @@ static COUNTER: AtomicU64 = AtomicU64::new(0);
 /// This machine's name as it appears in temporary folder names (letters,
 /// digits, `.` and `_` only), so that on a shared cache a process cleans only
 /// what its own machine's dead processes left.
-pub(crate) fn host_name() -> String {
-    let raw = std::fs::read_to_string("/proc/sys/kernel/hostname")
-        .or_else(|_| std::fs::read_to_string("/etc/hostname"))
-        .unwrap_or_else(|_| "localhost".into());
-    let name: String = raw
-        .trim()
-        .chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || c == '.' {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect();
-    if name.is_empty() {
-        "localhost".into()
-    } else {
-        name
-    }
+pub(crate) fn host_name() -> &'static str {
+    static NAME: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    NAME.get_or_init(|| {
+        let raw = std::fs::read_to_string("/proc/sys/kernel/hostname")
+            .or_else(|_| std::fs::read_to_string("/etc/hostname"))
+            .unwrap_or_else(|_| "localhost".into());
+        let name: String = raw
+            .trim()
+            .chars()
+            .map(|c| {
+                if c.is_ascii_alphanumeric() || c == '.' {
+                    c
+                } else {
+                    '_'
+                }
+            })
+            .collect();
+        if name.is_empty() {
+            "localhost".into()
+        } else {
+            name
+        }
+    })
 }
 
 /// Whether process `pid` of this machine is alive; `true` where that cannot
@@ -52,6 +55,17 @@ pub(crate) fn process_alive(pid: u32) -> bool {
 /// many it removed.
 pub fn clean_stale_temps(files_root: &Path) -> usize {
     clean_stale(files_root, ".tmp-")
+}
+
+/// A folder name private to this process: `<prefix><key>-<host>-<pid>-<n>`,
+/// as [`clean_stale`] parses it.
+fn private_name(prefix: &str, key_hex: &str) -> String {
+    format!(
+        "{prefix}{key_hex}-{}-{}-{}",
+        host_name(),
+        std::process::id(),
+        COUNTER.fetch_add(1, Ordering::Relaxed)
+    )
 }
 
 /// Removes `<prefix><key>-<host>-<pid>-<n>` folders under `dir` that dead
@@ -127,12 +141,7 @@ impl WorkDir {
     }
 
     fn temp_under(root: &Path, key_hex: &str) -> PathBuf {
-        root.join(format!(
-            ".tmp-{key_hex}-{}-{}-{}",
-            host_name(),
-            std::process::id(),
-            COUNTER.fetch_add(1, Ordering::Relaxed)
-        ))
+        root.join(private_name(".tmp-", key_hex))
     }
 
     /// Creates the temporary folder (once) and returns it. Where the files
@@ -218,12 +227,7 @@ impl Staging {
     /// A staging folder for the sink of key `key_hex` (created when written).
     pub fn new(out_dir: &Path, key_hex: &str) -> Self {
         let out_dir = std::path::absolute(out_dir).unwrap_or_else(|_| out_dir.to_path_buf());
-        let dir = out_dir.join(format!(
-            ".staging-{key_hex}-{}-{}-{}",
-            host_name(),
-            std::process::id(),
-            COUNTER.fetch_add(1, Ordering::Relaxed)
-        ));
+        let dir = out_dir.join(private_name(".staging-", key_hex));
         Staging { dir, out_dir }
     }
 

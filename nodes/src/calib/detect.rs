@@ -376,8 +376,8 @@ pub enum Refusal {
 }
 
 impl Refusal {
-    /// A stable number for the kind of refusal (1 is kept for a photo that
-    /// could not be read, 0 for a board found).
+    /// A stable number for the kind of refusal (0 and 1 are kept for a board
+    /// found and a photo that could not be read: `calib::PhotoRecord`).
     pub fn code(&self) -> u8 {
         match self {
             Refusal::AmbiguousPattern { .. } => 2,

@@ -258,7 +258,7 @@ impl Op for FindChessboardOp {
             ctx.metric("detected", 1.0);
             ctx.metric("total", 1.0);
             let record = PhotoRecord {
-                refusal: 0,
+                refusal: PhotoRecord::FOUND,
                 size: (img.width, img.height),
             };
             return Ok(Outputs::new()
@@ -290,8 +290,8 @@ impl Op for FindChessboardOp {
         let results: Vec<Detection> = files
             .par_iter()
             .map(|(_, f)| {
-                let img =
-                    load_grey_within(f, max_pixels).map_err(|e| (e.to_string(), (0, 0), 1))?;
+                let img = load_grey_within(f, max_pixels)
+                    .map_err(|e| (e.to_string(), (0, 0), PhotoRecord::UNREADABLE))?;
                 find_chessboard(&img.levels, img.width, img.height, cols, rows)
                     .map(|c| (c, img.width, img.height))
                     .map_err(|why| (why.to_string(), (img.width, img.height), why.code()))
@@ -306,14 +306,14 @@ impl Op for FindChessboardOp {
                     records.push((
                         *view,
                         PhotoRecord {
-                            refusal: 0,
+                            refusal: PhotoRecord::FOUND,
                             size: (w, h),
                         },
                     ));
                     found.push((*view, corners, w, h));
                 }
                 Err((why, size, refusal)) => {
-                    let what = if refusal == 1 {
+                    let what = if refusal == PhotoRecord::UNREADABLE {
                         "unreadable"
                     } else {
                         "refused"

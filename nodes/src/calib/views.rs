@@ -3,7 +3,6 @@
 //! stereo pair is the left and right photo of one number, whatever other files
 //! the folder holds and whichever photos are missing or refused.
 
-use nalgebra::Point2;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -98,9 +97,14 @@ pub struct PhotoRecord {
 }
 
 impl PhotoRecord {
+    /// The `refusal` of a photo whose board was found.
+    pub const FOUND: u8 = 0;
+    /// The `refusal` of a photo that could not be read.
+    pub const UNREADABLE: u8 = 1;
+
     /// Whether the board was found.
     pub fn found(&self) -> bool {
-        self.refusal == 0
+        self.refusal == Self::FOUND
     }
 }
 
@@ -121,7 +125,7 @@ impl Side {
             return "board found".into();
         }
         match self.photos.as_ref().map(|p| p.get(&v)) {
-            Some(Some(r)) if r.refusal == 1 => "photo unreadable".into(),
+            Some(Some(r)) if r.refusal == PhotoRecord::UNREADABLE => "photo unreadable".into(),
             Some(Some(r)) => format!("board refused ({})", Refusal::describe_code(r.refusal)),
             Some(None) => "no photo".into(),
             None => "no board (refused or no photo)".into(),
@@ -160,17 +164,14 @@ pub fn usual_size(sizes: &BTreeMap<u32, (usize, usize)>) -> ((usize, usize), Vec
             None => counts.push((*s, 1)),
         }
     }
-    // Stable: the first size seen (the lowest view's) wins a tie.
-    let usual = counts
-        .iter()
-        .fold(
-            None,
-            |best: Option<((usize, usize), usize)>, &(s, n)| match best {
-                Some((_, m)) if m >= n => best,
-                _ => Some((s, n)),
-            },
-        )
-        .map_or((0, 0), |(s, _)| s);
+    // The first size seen (the lowest view's) wins a tie.
+    let mut usual = ((0, 0), 0);
+    for &(size, n) in &counts {
+        if n > usual.1 {
+            usual = (size, n);
+        }
+    }
+    let usual = usual.0;
     let odd = sizes
         .iter()
         .filter(|(_, s)| **s != usual)
@@ -252,20 +253,10 @@ pub fn pair_views(left: &Side, right: &Side, min_pairs: usize) -> Result<Pairing
     Ok(pairing)
 }
 
-/// A board view from corner positions (px) of a `cols`-wide pattern of
-/// `square_mm` squares, in the detector's order.
-pub fn board_view(corners: &[Point2<f64>], cols: usize, square_mm: f64) -> BoardView {
-    BoardView {
-        board_mm: (0..corners.len())
-            .map(|k| Point2::new((k % cols) as f64 * square_mm, (k / cols) as f64 * square_mm))
-            .collect(),
-        image_px: corners.to_vec(),
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::Point2;
 
     #[test]
     fn views_are_numbered_by_the_last_number_in_the_name() {
@@ -311,13 +302,28 @@ mod tests {
     }
 
     fn side(found: &[u32], refused: &[u32], size: (usize, usize)) -> Side {
-        let view = board_view(&[Point2::new(1.0, 2.0)], 1, 25.0);
+        let view = BoardView {
+            board_mm: vec![Point2::new(0.0, 0.0)],
+            image_px: vec![Point2::new(1.0, 2.0)],
+        };
         let mut photos: BTreeMap<u32, PhotoRecord> = BTreeMap::new();
         for &v in found {
-            photos.insert(v, PhotoRecord { refusal: 0, size });
+            photos.insert(
+                v,
+                PhotoRecord {
+                    refusal: PhotoRecord::FOUND,
+                    size,
+                },
+            );
         }
         for &v in refused {
-            photos.insert(v, PhotoRecord { refusal: 5, size });
+            let refusal = Refusal::NoCompleteGrid {
+                cols: 9,
+                rows: 6,
+                largest: 0,
+            }
+            .code();
+            photos.insert(v, PhotoRecord { refusal, size });
         }
         Side {
             boards: found.iter().map(|&v| (v, (view.clone(), size))).collect(),

@@ -51,10 +51,17 @@ pub fn load_image(path: &std::path::Path) -> Result<Image, OpError> {
 /// `max_pixels` is refused before decoding, and the decoder may allocate no
 /// more than the image needs.
 pub fn load_image_within(path: &std::path::Path, max_pixels: u64) -> Result<Image, OpError> {
+    let bytes = std::fs::read(path).map_err(|e| OpError::io(path, e))?;
+    decode_rgb(path, &bytes, max_pixels)
+}
+
+/// Decodes the bytes of image file `path` (named in errors) as 8-bit RGB:
+/// the header's size is checked first, then the decoder runs with its
+/// allocations bounded by that size.
+fn decode_rgb(path: &std::path::Path, bytes: &[u8], max_pixels: u64) -> Result<Image, OpError> {
     let named = |e: image::ImageError| OpError::invalid(format!("{}: {e}", path.display()));
-    let reader = || -> Result<image::ImageReader<_>, OpError> {
-        image::ImageReader::open(path)
-            .map_err(|e| OpError::io(path, e))?
+    let reader = || {
+        image::ImageReader::new(std::io::Cursor::new(bytes))
             .with_guessed_format()
             .map_err(|e| OpError::io(path, e))
     };
@@ -127,7 +134,7 @@ pub fn load_grey_within(path: &std::path::Path, max_pixels: u64) -> Result<GreyI
             levels,
         });
     }
-    let img = load_image_within(path, max_pixels)?;
+    let img = decode_rgb(path, &bytes, max_pixels)?;
     Ok(GreyImage {
         width: img.width,
         height: img.height,

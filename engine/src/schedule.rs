@@ -280,28 +280,8 @@ impl<'a> Executor<'a> {
                 panic_message(&panic)
             )),
         };
-        let result = match (result, files) {
-            (Ok(mut outputs), Some(files)) => files
-                .finalize(&mut outputs)
-                .map(|()| outputs)
-                .map_err(|e| e.to_string()),
-            (Err(e), Some(files)) => {
-                files.discard();
-                Err(e)
-            }
-            (result, None) => result,
-        };
-        let result = match (result, staging) {
-            (Ok(mut outputs), Some(staging)) => staging
-                .publish(&mut outputs)
-                .map(|()| outputs)
-                .map_err(|e| e.to_string()),
-            (Err(e), Some(staging)) => {
-                staging.discard();
-                Err(e)
-            }
-            (result, None) => result,
-        };
+        let result = crate::workdir::settle(result, files);
+        let result = crate::workdir::settle(result, staging);
         let outputs = match result {
             Ok(outputs) => outputs,
             Err(msg) => {

@@ -213,6 +213,52 @@ impl WorkDir {
     }
 }
 
+/// A private folder an op writes into while it runs: moved into place with
+/// its `Path` outputs when the op succeeds, removed when it fails.
+pub trait Settle: Sized {
+    /// Moves the files into place and points `outputs` there.
+    fn finalize(self, outputs: &mut Outputs) -> Result<(), OpError>;
+    /// Removes what was written.
+    fn discard(self);
+}
+
+impl Settle for WorkDir {
+    fn finalize(self, outputs: &mut Outputs) -> Result<(), OpError> {
+        WorkDir::finalize(self, outputs)
+    }
+    fn discard(self) {
+        WorkDir::discard(self)
+    }
+}
+
+impl Settle for Staging {
+    fn finalize(self, outputs: &mut Outputs) -> Result<(), OpError> {
+        self.publish(outputs)
+    }
+    fn discard(self) {
+        Staging::discard(self)
+    }
+}
+
+/// An op's result after settling its private folder, if it had one: moved
+/// into place on success (a failure to move fails the op), removed on failure.
+pub fn settle<P: Settle>(
+    result: Result<Outputs, String>,
+    place: Option<P>,
+) -> Result<Outputs, String> {
+    match (result, place) {
+        (Ok(mut outputs), Some(place)) => place
+            .finalize(&mut outputs)
+            .map(|()| outputs)
+            .map_err(|e| e.to_string()),
+        (Err(e), Some(place)) => {
+            place.discard();
+            Err(e)
+        }
+        (result, None) => result,
+    }
+}
+
 /// A sink's private output folder, `OUT/.staging-<key>-<host>-<pid>-<n>`:
 /// the sink writes there, and only when it succeeds are its files renamed
 /// into the output folder, each whole (a full disk or a failure leaves no

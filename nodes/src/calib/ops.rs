@@ -43,7 +43,7 @@ pub(crate) fn boards_from_table(t: &Table) -> Result<Boards, OpError> {
     let mut boards: Boards = BTreeMap::new();
     for r in 0..t.row_count() {
         let row = t.row(r);
-        let (v, size) = boards.entry(row[0] as u32).or_insert_with(|| {
+        let (v, _) = boards.entry(row[0] as u32).or_insert_with(|| {
             (
                 BoardView {
                     board_mm: Vec::new(),
@@ -54,7 +54,6 @@ pub(crate) fn boards_from_table(t: &Table) -> Result<Boards, OpError> {
         });
         v.image_px.push(Point2::new(row[2], row[3]));
         v.board_mm.push(Point2::new(row[4], row[5]));
-        *size = (row[6] as usize, row[7] as usize);
     }
     Ok(boards)
 }

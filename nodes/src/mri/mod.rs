@@ -6,11 +6,13 @@ mod intensity;
 mod marching_cubes;
 mod markers;
 mod ops;
+mod self_intersection;
 
 pub use components::{Connectivity, label_components};
 pub use intensity::{otsu_threshold, percentiles, stretch};
 pub use marching_cubes::{TriangleMesh, marching_cubes};
 pub use markers::{MarkerSelection, Weighting, centroids, select_components};
+pub use self_intersection::{self_intersections, triangle_distance};
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;

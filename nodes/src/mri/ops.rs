@@ -144,7 +144,7 @@ impl IsosurfaceOp {
         IsosurfaceOp(
             OpSpec::new(
                 "mri.isosurface",
-                1,
+                2,
                 "Marching cubes: the surface value = level, in patient mm, closed",
             )
             .input(

@@ -77,6 +77,15 @@ pub fn summary(report: &RunReport, out_dir: &Path) -> String {
         );
         if let Some(e) = &n.error {
             let _ = writeln!(s, "{:>8} {e}", "");
+            // A failed node's notes say why: shown here, not only in the report.
+            const SHOWN: usize = 10;
+            for note in n.notes.iter().take(SHOWN) {
+                let _ = writeln!(s, "{:>8} note: {note}", "");
+            }
+            if n.notes.len() > SHOWN {
+                let more = n.notes.len() - SHOWN;
+                let _ = writeln!(s, "{:>8} ... and {more} more notes in report.json", "");
+            }
         }
     }
     let counts = report.note_counts();

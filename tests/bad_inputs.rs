@@ -156,7 +156,6 @@ fn adler32(bytes: &[u8]) -> u32 {
 #[cfg(target_os = "linux")]
 #[test]
 fn a_decompression_bomb_fails_clearly_under_a_memory_limit() {
-    use std::os::unix::process::CommandExt;
     let t = tempfile::tempdir().unwrap();
     std::fs::write(t.path().join("bomb.png"), png_bomb(20_000, 20_000)).unwrap();
     std::fs::write(
@@ -164,24 +163,12 @@ fn a_decompression_bomb_fails_clearly_under_a_memory_limit() {
         "[node.img]\nop = \"io.read_image\"\npath = \"bomb.png\"\n",
     )
     .unwrap();
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_fusegraph"));
-    cmd.args(["run", "g.toml", "--no-cache"])
-        .current_dir(t.path());
-    // SAFETY: setrlimit is async-signal-safe; the child only calls it
-    // between fork and exec.
-    unsafe {
-        cmd.pre_exec(|| {
-            let limit = libc::rlimit {
-                rlim_cur: 1 << 30,
-                rlim_max: 1 << 30,
-            };
-            if libc::setrlimit(libc::RLIMIT_AS, &limit) != 0 {
-                return Err(std::io::Error::last_os_error());
-            }
-            Ok(())
-        });
-    }
-    let o = cmd.output().unwrap();
+    let o = common::limited(
+        &["run", "g.toml", "--no-cache"],
+        t.path(),
+        1 << 30,
+        std::time::Duration::from_secs(120),
+    );
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     let e = stderr(&o);
     assert!(e.contains("bomb.png: declares 20000 x 20000 px"), "{e}");

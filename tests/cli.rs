@@ -739,6 +739,7 @@ fn main_job_locates_the_lesions_from_images_alone() {
         page.contains("canvas class=\"view3d\""),
         "3D view of the fused result"
     );
+    same_results_on_one_thread(t.path(), &report(&out));
     // Re-run: everything cached; one ICP parameter: ICP and what follows only.
     let o = fusegraph(
         &["run", "fusion.toml", "--set", "icp.trim_ratio=0.8"],
@@ -770,6 +771,76 @@ fn main_job_locates_the_lesions_from_images_alone() {
         );
     }
     assert!(ran.contains(&"icp"), "{ran:?}");
+}
+
+/// Runs fusion.toml again, cold, on one worker thread (so every rayon loop in
+/// every op runs serially) with its own cache, and checks that each node's
+/// entry equals the default run's (one thread per core): bit-identical
+/// outputs (files by content hash), metrics (but timings) and notes.
+fn same_results_on_one_thread(dir: &Path, parallel: &serde_json::Value) {
+    use fusegraph_engine::Value;
+    use fusegraph_engine::cache::{DiskCache, Lookup};
+    use fusegraph_engine::key::NodeKey;
+    let serial_cache = dir.join("serial-cache");
+    let o = fusegraph(
+        &[
+            "run",
+            "fusion.toml",
+            "--jobs",
+            "1",
+            "--cache",
+            serial_cache.to_str().unwrap(),
+            "--out",
+            "serial-out",
+        ],
+        dir,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let serial = report(&dir.join("serial-out"));
+    let caches = [
+        DiskCache::open(&dir.join(".fusegraph/cache")).unwrap(),
+        DiskCache::open(&serial_cache).unwrap(),
+    ];
+    let bytes = |v: &Value| match v {
+        Value::Path(p) => p.content_hash.clone().into_bytes(),
+        other => {
+            let mut out = Vec::new();
+            fusegraph_engine::value::encode_value(other, &mut out);
+            out
+        }
+    };
+    let mut compared = 0;
+    for (id, node) in parallel["nodes"].as_object().unwrap() {
+        let key = node["key"].as_str().unwrap();
+        if node["op"].as_str().unwrap().starts_with("io.write") {
+            continue; // sinks: their keys hold the output folder
+        }
+        assert_eq!(serial["nodes"][id]["key"], node["key"], "{id}: key");
+        let hex: Vec<u8> = (0..32)
+            .map(|i| u8::from_str_radix(&key[2 * i..2 * i + 2], 16).unwrap())
+            .collect();
+        let key = NodeKey(hex.try_into().unwrap());
+        let [Lookup::Hit(a), Lookup::Hit(b)] = caches.each_ref().map(|c| c.load(&key)) else {
+            panic!("{id}: entry missing in one cache")
+        };
+        assert_eq!(a.outputs.0.len(), b.outputs.0.len(), "{id}");
+        for (port, value) in &a.outputs.0 {
+            assert!(
+                bytes(value) == bytes(&b.outputs.0[port]),
+                "{id}.{port} differs between one thread and several"
+            );
+        }
+        let untimed = |m: &std::collections::BTreeMap<String, f64>| -> Vec<(String, u64)> {
+            m.iter()
+                .filter(|(k, _)| !k.ends_with("_ms"))
+                .map(|(k, v)| (k.clone(), v.to_bits()))
+                .collect()
+        };
+        assert_eq!(untimed(&a.metrics), untimed(&b.metrics), "{id}: metrics");
+        assert_eq!(a.notes, b.notes, "{id}: notes");
+        compared += 1;
+    }
+    assert!(compared > 100, "{compared} nodes compared");
 }
 
 /// `p` through the row-major 4 x 4 `m` (a JSON array of rows).

@@ -15,6 +15,17 @@ pub mod plot;
 pub mod register;
 pub mod stereo;
 
+/// Runs `f` on a pool of `threads` workers: tests compare one thread with
+/// several to check that parallel loops give the same bits.
+#[cfg(test)]
+pub(crate) fn on_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("a thread pool")
+        .install(f)
+}
+
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;
 

@@ -286,6 +286,12 @@ mod tests {
     fn deterministic_and_scaling_with_noise_squared() {
         let a = baseline_study(&params()).unwrap();
         assert_eq!(a, baseline_study(&params()).unwrap());
+        let serial = crate::on_threads(1, || baseline_study(&params()).unwrap());
+        assert_eq!(
+            a,
+            crate::on_threads(3, || baseline_study(&params()).unwrap())
+        );
+        assert_eq!(a, serial, "one thread and several");
         let half = baseline_study(&StudyParams {
             noise_px: 0.5,
             ..params()

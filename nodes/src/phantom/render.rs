@@ -314,12 +314,10 @@ mod tests {
             vignetting: true,
             seed: 9,
         };
-        let one = rayon::ThreadPoolBuilder::new()
-            .num_threads(1)
-            .build()
-            .unwrap();
         let c = camera();
-        let a = one.install(|| Renderer::new(&c).render(&Isometry3::identity(), &HalfPlane, &p));
+        let a = crate::on_threads(1, || {
+            Renderer::new(&c).render(&Isometry3::identity(), &HalfPlane, &p)
+        });
         let b = Renderer::new(&c).render(&Isometry3::identity(), &HalfPlane, &p);
         assert_eq!(a, b);
     }

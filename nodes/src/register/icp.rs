@@ -301,10 +301,6 @@ mod tests {
             .map(|p| offset * p)
             .collect();
         let bits = |threads: usize, method: IcpMethod| {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
             let params = IcpParams {
                 method,
                 max_distance_mm: 10.0,
@@ -314,18 +310,17 @@ mod tests {
                 tolerance: 0.0,
                 voxel_sizes_mm: vec![],
             };
-            let r = pool
-                .install(|| {
-                    icp(
-                        &source,
-                        &target,
-                        Some(&normals),
-                        &tree,
-                        &Isometry3::identity(),
-                        &params,
-                    )
-                })
-                .unwrap();
+            let r = crate::on_threads(threads, || {
+                icp(
+                    &source,
+                    &target,
+                    Some(&normals),
+                    &tree,
+                    &Isometry3::identity(),
+                    &params,
+                )
+            })
+            .unwrap();
             let m = r.transform.to_homogeneous();
             (
                 m.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),

@@ -230,6 +230,32 @@ mod tests {
     }
 
     #[test]
+    fn same_bits_on_any_number_of_threads() {
+        let (w, h) = (80, 120);
+        let grey = |seed| GreyImage {
+            width: w,
+            height: h,
+            data: random_dot(w, h, seed),
+        };
+        let (left, right) = (grey(5), grey(6));
+        let range = DisparityRange::new(0, 15, w).unwrap();
+        let p = SelectParams {
+            uniqueness_pct: 5.0,
+            lr_max_diff_px: Some(1.0),
+            subpixel: true,
+        };
+        for cost in [BlockCost::Sad, BlockCost::Zncc, BlockCost::Census] {
+            let bits = |threads| {
+                crate::on_threads(threads, || block_match(&left, &right, range, cost, 7, &p))
+                    .iter()
+                    .map(|v| v.to_bits())
+                    .collect::<Vec<u32>>()
+            };
+            assert_eq!(bits(1), bits(3), "{cost:?}");
+        }
+    }
+
+    #[test]
     fn window_sums_equal_direct_sums() {
         let (w, h) = (9, 6);
         let img: Vec<u32> = (0..w * h).map(|i| (i * 7 % 11) as u32).collect();

@@ -354,11 +354,9 @@ mod tests {
         let range = DisparityRange::new(0, 31, w).unwrap();
         let config = SgmConfig::default();
         let run = |threads: usize| {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
-            let d = pool.install(|| sgm_disparity(&left, &right, range, &config).unwrap());
+            let d = crate::on_threads(threads, || {
+                sgm_disparity(&left, &right, range, &config).unwrap()
+            });
             d.iter().map(|v| v.to_bits()).collect::<Vec<u32>>()
         };
         assert_eq!(run(1), run(3));

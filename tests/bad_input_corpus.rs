@@ -1,0 +1,310 @@
+//! A corpus of bad inputs, run through the CLI under a 1 GiB address-space
+//! limit and a time limit: corrupt DICOM slices (patched from the small
+//! phantom's), special files where files are expected, absurd parameters,
+//! clashing sinks and undecodable photos. Each must end with a clear error
+//! (exit 1 or 2) naming the file, node or key, within bounded time and
+//! memory; never a panic (exit 101), an abort or a hang.
+
+mod common;
+
+use common::{fusegraph, limited, stderr};
+use std::path::Path;
+
+/// One bad input: what to run and what the user must be told.
+struct Case {
+    name: &'static str,
+    args: Vec<String>,
+    exit: i32,
+    /// Every one of these must appear on stderr.
+    says: Vec<String>,
+}
+
+/// The first occurrence of `tag` (group, element) with explicit VR `vr` in
+/// an explicit-VR little-endian file: the offset of its value and its length.
+fn find_element(bytes: &[u8], (group, element): (u16, u16), vr: &[u8; 2]) -> (usize, usize) {
+    let mut pattern = group.to_le_bytes().to_vec();
+    pattern.extend(element.to_le_bytes());
+    pattern.extend(vr);
+    let at = bytes
+        .windows(pattern.len())
+        .position(|w| w == pattern)
+        .unwrap_or_else(|| panic!("({group:04X},{element:04X}) in the slice"));
+    let long = matches!(vr, b"OB" | b"OW" | b"SQ" | b"UN" | b"UT");
+    if long {
+        let len = u32::from_le_bytes(bytes[at + 8..at + 12].try_into().unwrap());
+        (at + 12, len as usize)
+    } else {
+        let len = u16::from_le_bytes(bytes[at + 6..at + 8].try_into().unwrap());
+        (at + 8, len as usize)
+    }
+}
+
+/// Overwrites the value of a short-VR element with `value`, padded with
+/// spaces to its length (the length stays, so the file stays parseable).
+fn patch_value(bytes: &mut [u8], tag: (u16, u16), vr: &[u8; 2], value: &[u8]) {
+    let (at, len) = find_element(bytes, tag, vr);
+    assert!(value.len() <= len, "{value:?} fits in {len} bytes");
+    bytes[at..at + len].fill(b' ');
+    bytes[at..at + value.len()].copy_from_slice(value);
+}
+
+/// A series folder `name` holding the phantom's slices, with slice 2
+/// changed by `change`.
+fn series_with(root: &Path, slices: &Path, name: &str, change: impl Fn(&mut Vec<u8>)) -> String {
+    let dir = root.join(name);
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut files: Vec<_> = std::fs::read_dir(slices)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    files.sort();
+    for (i, file) in files.iter().enumerate() {
+        let mut bytes = std::fs::read(file).unwrap();
+        if i == 2 {
+            change(&mut bytes);
+        }
+        std::fs::write(dir.join(file.file_name().unwrap()), bytes).unwrap();
+    }
+    dir.to_str().unwrap().to_string()
+}
+
+fn load_case(name: &'static str, dir: &str, says: &[&str]) -> Case {
+    Case {
+        name,
+        args: [
+            "run",
+            "load.toml",
+            "--no-cache",
+            "--set",
+            &format!("load.path={dir}"),
+        ]
+        .map(String::from)
+        .to_vec(),
+        exit: 1,
+        says: says.iter().map(|s| s.to_string()).collect(),
+    }
+}
+
+fn write_graph(dir: &Path, name: &str, text: &str) {
+    std::fs::write(dir.join(name), text).unwrap();
+}
+
+#[cfg(target_os = "linux")]
+#[test]
+fn every_bad_input_of_the_corpus_gets_a_clear_error_in_bounded_memory_and_time() {
+    let t = tempfile::tempdir().unwrap();
+    let root = t.path();
+    let o = fusegraph(&["phantom", "--size", "small", "--out", "ph"], root);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let slices = root.join("ph/mri");
+    let third = {
+        let mut f: Vec<_> = std::fs::read_dir(&slices)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        f.sort();
+        f[2].clone()
+    };
+    write_graph(
+        root,
+        "load.toml",
+        "[node.load]\nop = \"dicom.load_series\"\npath = \"ph/mri\"\n",
+    );
+
+    let mut cases = vec![
+        load_case(
+            "PixelData length 0xFFFFFFF0",
+            &series_with(root, &slices, "pixel_length", |b| {
+                let (at, _) = find_element(b, (0x7FE0, 0x0010), b"OW");
+                b[at - 4..at].copy_from_slice(&0xFFFF_FFF0u32.to_le_bytes());
+            }),
+            &[&third, "PixelData", "declares 4294967280 bytes"],
+        ),
+        load_case(
+            "big-endian transfer syntax on little-endian data",
+            &series_with(root, &slices, "syntax", |b| {
+                let (at, len) = find_element(b, (0x0002, 0x0010), b"UI");
+                assert_eq!(&b[at..at + len], b"1.2.840.10008.1.2.1\0");
+                b[at..at + len].copy_from_slice(b"1.2.840.10008.1.2.2\0");
+            }),
+            &[&third],
+        ),
+        load_case(
+            "BitsStored 0",
+            &series_with(root, &slices, "bits_stored", |b| {
+                let (at, _) = find_element(b, (0x0028, 0x0101), b"US");
+                b[at..at + 2].copy_from_slice(&0u16.to_le_bytes());
+            }),
+            &[&third, "BitsStored"],
+        ),
+        load_case(
+            "BitsAllocated 8 in one slice of 16-bit slices",
+            &series_with(root, &slices, "bits_allocated", |b| {
+                let (at, _) = find_element(b, (0x0028, 0x0100), b"US");
+                b[at..at + 2].copy_from_slice(&8u16.to_le_bytes());
+                let (at, _) = find_element(b, (0x0028, 0x0101), b"US");
+                b[at..at + 2].copy_from_slice(&8u16.to_le_bytes());
+            }),
+            &[&third, "BitsAllocated"],
+        ),
+        load_case(
+            "RescaleSlope abc",
+            &series_with(root, &slices, "slope_abc", |b| {
+                patch_value(b, (0x0028, 0x1053), b"DS", b"abc")
+            }),
+            &[&third, "RescaleSlope"],
+        ),
+        load_case(
+            "RescaleSlope nan",
+            &series_with(root, &slices, "slope_nan", |b| {
+                patch_value(b, (0x0028, 0x1053), b"DS", b"nan")
+            }),
+            &[&third, "RescaleSlope"],
+        ),
+        load_case(
+            "PixelSpacing 1e308",
+            &series_with(root, &slices, "spacing", |b| {
+                patch_value(b, (0x0028, 0x0030), b"DS", b"1e308\\1")
+            }),
+            &[&third, "PixelSpacing"],
+        ),
+        load_case(
+            "a slice cut in half",
+            &series_with(root, &slices, "truncated", |b| b.truncate(b.len() / 2)),
+            &[&third],
+        ),
+    ];
+
+    // A FIFO among the slices: never opened, named.
+    let fifo_dir = series_with(root, &slices, "fifo", |_| {});
+    let fifo = std::ffi::CString::new(format!("{fifo_dir}/IM9999.dcm")).unwrap();
+    // SAFETY: a valid NUL-terminated path.
+    assert_eq!(unsafe { libc::mkfifo(fifo.as_ptr(), 0o600) }, 0);
+    cases.push(Case {
+        exit: 2,
+        ..load_case(
+            "a FIFO in the series folder",
+            &fifo_dir,
+            &["load", "IM9999.dcm", "not a regular file"],
+        )
+    });
+
+    // Special files and absurd values where parameters are read.
+    write_graph(
+        root,
+        "image.toml",
+        "[node.img]\nop = \"io.read_image\"\npath = \"/dev/zero\"\n",
+    );
+    cases.push(Case {
+        name: "/dev/zero as an image",
+        args: ["run", "image.toml", "--no-cache"]
+            .map(String::from)
+            .to_vec(),
+        exit: 2,
+        says: vec!["/dev/zero".into(), "not a regular file".into()],
+    });
+    write_graph(
+        root,
+        "design.toml",
+        "[node.mc]\nop = \"design.baseline_monte_carlo\"\nlens_mm = 8.0\nrange_mm = [700.0, 400.0]\n",
+    );
+    cases.push(Case {
+        name: "a reversed working range",
+        args: ["run", "design.toml", "--no-cache"]
+            .map(String::from)
+            .to_vec(),
+        exit: 2,
+        says: vec!["mc".into(), "range_mm".into()],
+    });
+    std::fs::copy(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("graphs/multiview.toml"),
+        root.join("multiview.toml"),
+    )
+    .unwrap();
+    cases.push(Case {
+        name: "a pose noise of 1e300 deg",
+        args: [
+            "run",
+            "multiview.toml",
+            "--no-cache",
+            "--set",
+            "phantom.size=small",
+            "--set",
+            "pose1.noise_deg=1e300",
+        ]
+        .map(String::from)
+        .to_vec(),
+        exit: 2,
+        says: vec!["pose1".into(), "noise_deg".into()],
+    });
+    write_graph(
+        root,
+        "sinks.toml",
+        "[node.a]\nop = \"math.constant\"\nvalue = 1.0\n\
+         [node.t]\nop = \"io.write_json\"\nin.value = \"a.value\"\nfile = \"x.json\"\n\
+         [node.u]\nop = \"io.write_json\"\nin.value = \"a.value\"\nfile = \"x.json\"\n",
+    );
+    cases.push(Case {
+        name: "two sinks writing one file",
+        args: ["validate", "sinks.toml"].map(String::from).to_vec(),
+        exit: 2,
+        says: vec!["x.json".into()],
+    });
+    cases.push(Case {
+        name: "a --set with a newline",
+        args: ["validate", "sinks.toml", "--set", "a.value=1\n[node.z]"]
+            .map(String::from)
+            .to_vec(),
+        exit: 2,
+        says: vec!["a.value".into(), "line break".into()],
+    });
+
+    // Photos none of which decode: the detector fails, naming each.
+    let photos = root.join("photos");
+    std::fs::create_dir(&photos).unwrap();
+    for i in 1..=3 {
+        std::fs::write(
+            photos.join(format!("left_{i:02}.png")),
+            b"\x89PNG\r\n\x1a\nnot",
+        )
+        .unwrap();
+    }
+    write_graph(
+        root,
+        "photos.toml",
+        "[node.corners]\nop = \"calib.find_chessboard\"\ndir = \"photos\"\nglob = \"left_*.png\"\npattern = [9, 6]\n",
+    );
+    cases.push(Case {
+        name: "three undecodable photos",
+        args: ["run", "photos.toml", "--no-cache"]
+            .map(String::from)
+            .to_vec(),
+        exit: 1,
+        says: vec![
+            "corners".into(),
+            "found in none of the 3 photos".into(),
+            "note: left_01.png".into(),
+        ],
+    });
+
+    let mut failures = Vec::new();
+    for case in &cases {
+        let args: Vec<&str> = case.args.iter().map(String::as_str).collect();
+        let o = limited(&args, root, 1 << 30, std::time::Duration::from_secs(120));
+        let e = stderr(&o);
+        let missing: Vec<&String> = case
+            .says
+            .iter()
+            .filter(|s| !e.contains(s.as_str()))
+            .collect();
+        if o.status.code() != Some(case.exit) || !missing.is_empty() || e.contains("panicked") {
+            failures.push(format!(
+                "{}: exit {:?} (want {}), missing {missing:?}:\n{e}",
+                case.name,
+                o.status.code(),
+                case.exit
+            ));
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n---\n"));
+}

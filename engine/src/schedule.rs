@@ -369,7 +369,7 @@ impl<'a> Executor<'a> {
                 told = true;
             }
             // A live owner that never finishes must not hang this run forever.
-            if start.elapsed() > crate::lease::FOREIGN_STALE {
+            if start.elapsed() > crate::lease::WAIT_LIMIT {
                 tracing::warn!(node = %id, "gave up waiting for another run's lease");
                 return Ok(None);
             }

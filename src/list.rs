@@ -10,6 +10,9 @@ pub fn nodes_text(registry: &Registry) -> String {
     let mut s = String::new();
     for spec in registry.specs() {
         let _ = writeln!(s, "{} (v{}): {}", spec.name, spec.version, spec.doc);
+        if let Some(origin) = &spec.origin {
+            let _ = writeln!(s, "    from plugin {}", origin.file.display());
+        }
         for p in &spec.inputs {
             let opt = if p.optional { ", optional" } else { "" };
             let _ = writeln!(s, "    in  {}: {}{opt}  {}", p.name, p.type_names(), p.doc);

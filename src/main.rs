@@ -31,6 +31,10 @@ struct Cli {
     /// More logging on stderr (-v: info, -vv: debug).
     #[arg(short, long, global = true, action = clap::ArgAction::Count)]
     verbose: u8,
+    /// Load node types from a plugin library (repeatable; also from
+    /// `[graph] plugins` and FUSEGRAPH_PLUGIN_PATH, files or folders as in PATH).
+    #[arg(long = "plugin", global = true, value_name = "PATH")]
+    plugins: Vec<PathBuf>,
     #[command(subcommand)]
     command: Command,
 }
@@ -105,9 +109,14 @@ struct Edit {
 
 fn main() -> ExitCode {
     quiet_on_broken_pipe();
+    fusegraph_engine::panics::install_hook();
     let cli = Cli::parse();
     init_logging(cli.verbose);
-    let registry = fusegraph_nodes::builtin_registry();
+    let mut registry = fusegraph_nodes::builtin_registry();
+    if let Err(why) = load_plugins(&cli.plugins, &mut registry) {
+        eprintln!("error: {why}");
+        return ExitCode::from(EXIT_INVALID);
+    }
     match execute(cli, &registry) {
         Ok(code) => code,
         Err(e) => {
@@ -120,6 +129,17 @@ fn main() -> ExitCode {
             }
         }
     }
+}
+
+/// Adds the ops of FUSEGRAPH_PLUGIN_PATH's plugins and of `--plugin` ones.
+fn load_plugins(flags: &[PathBuf], registry: &mut Registry) -> Result<(), String> {
+    if let Some(path) = std::env::var_os("FUSEGRAPH_PLUGIN_PATH") {
+        fusegraph_engine::plugin::load_plugin_path(&path, registry)?;
+    }
+    for p in flags {
+        fusegraph_engine::plugin::load_plugin(p, registry).map_err(|e| format!("--plugin: {e}"))?;
+    }
+    Ok(())
 }
 
 /// Ends the process quietly when its output pipe closes (`fusegraph nodes

@@ -175,6 +175,21 @@ fn every_bad_input_of_the_corpus_gets_a_clear_error_in_bounded_memory_and_time()
         ),
     ];
 
+    // A decoder that panics on a truncated RLE fragment (dicom-rs 0.10): the
+    // panic is caught per file and printed as an error, not as a crash.
+    let rle = root.join("rle");
+    std::fs::create_dir(&rle).unwrap();
+    let bytes = std::fs::read(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/dicom/MR_small_RLE.dcm"),
+    )
+    .unwrap();
+    std::fs::write(rle.join("cut.dcm"), &bytes[..5000]).unwrap();
+    cases.push(load_case(
+        "an RLE file cut inside a segment",
+        rle.to_str().unwrap(),
+        &["cut.dcm", "pixel data could not be decoded (RLE Lossless)"],
+    ));
+
     // A FIFO among the slices: never opened, named.
     let fifo_dir = series_with(root, &slices, "fifo", |_| {});
     let fifo = std::ffi::CString::new(format!("{fifo_dir}/IM9999.dcm")).unwrap();

@@ -40,6 +40,8 @@ pub enum ErrorKind {
     BadOverride,
     /// Two sinks write the same output file.
     OutputClash,
+    /// A plugin the graph names cannot be loaded.
+    Plugin,
 }
 
 /// One problem in a graph file.

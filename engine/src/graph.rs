@@ -57,9 +57,12 @@ pub struct GraphDoc {
     pub groups: Vec<Group>,
     /// `[graph.references]`: figures from elsewhere to show beside ours.
     pub references: Vec<Reference>,
+    /// `[graph] plugins`: plugin libraries the graph needs, resolved against
+    /// the graph file's folder.
+    pub plugins: Vec<PathBuf>,
 }
 
-const GRAPH_KEYS: &[&str] = &["name", "description", "references"];
+const GRAPH_KEYS: &[&str] = &["name", "description", "references", "plugins"];
 
 /// The largest graph file read (64 MiB: about a million nodes).
 const MAX_GRAPH_BYTES: u64 = 64 << 20;
@@ -101,6 +104,7 @@ impl GraphDoc {
         let mut nodes = Vec::new();
         let mut groups = Vec::new();
         let mut references = Vec::new();
+        let mut plugins: Vec<PathBuf> = Vec::new();
         for (key, value) in &table {
             match (key.as_str(), value) {
                 ("graph", toml::Value::Table(g)) => {
@@ -109,6 +113,18 @@ impl GraphDoc {
                             match parse_references(v) {
                                 Ok(r) => references = r,
                                 Err(m) => errors.push(err(m).at_key("references")),
+                            }
+                            continue;
+                        }
+                        if k == "plugins" {
+                            match v.as_array().map(|a| a.iter().map(|p| p.as_str()).collect::<Option<Vec<_>>>()) {
+                                Some(Some(list)) => {
+                                    plugins = list.iter().map(PathBuf::from).collect()
+                                }
+                                _ => errors.push(
+                                    err("[graph] plugins must be a list of library paths (relative to the graph file)".into())
+                                        .at_key("plugins"),
+                                ),
                             }
                             continue;
                         }
@@ -191,6 +207,7 @@ impl GraphDoc {
             .unwrap_or(Path::new("."))
             .to_path_buf();
         let base_dir = std::path::absolute(&base_dir).unwrap_or(base_dir);
+        let plugins = plugins.iter().map(|p| base_dir.join(p)).collect();
         Ok(GraphDoc {
             file: file.to_path_buf(),
             name,
@@ -198,6 +215,7 @@ impl GraphDoc {
             nodes,
             groups,
             references,
+            plugins,
         })
     }
 

@@ -46,6 +46,10 @@ pub fn node_keys(graph: &ValidGraph, out_dir: &Path) -> Result<Vec<NodeKey>, Gra
         h.update(b"fusegraph node key v1\0");
         put_str(&mut h, &spec.name);
         h.update(&spec.version.to_le_bytes());
+        if let Some(origin) = &spec.origin {
+            // A rebuilt plugin invalidates its own ops' results only.
+            put_str(&mut h, &origin.content_hash);
+        }
         for (name, value) in &node.params.0 {
             put_str(&mut h, name);
             if let Err(e) = put_param(&mut h, value) {

@@ -58,6 +58,19 @@ pub struct OpSpec {
     /// sink). Its cache key then includes that folder, and its cached result is
     /// reused only while the files it wrote still hold the same content.
     pub writes_output: bool,
+    /// The plugin library that declared the op (`None` for built-in ops). Its
+    /// content hash is part of the op's cache key.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub origin: Option<Origin>,
+}
+
+/// Where a plugin's op comes from.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Origin {
+    /// The library file (absolute).
+    pub file: PathBuf,
+    /// Hex blake3 hash of its content.
+    pub content_hash: String,
 }
 
 impl OpSpec {
@@ -71,6 +84,7 @@ impl OpSpec {
             outputs: Vec::new(),
             params: Vec::new(),
             writes_output: false,
+            origin: None,
         }
     }
 

@@ -20,6 +20,9 @@ pub enum RegisterError {
 #[derive(Clone, Default)]
 pub struct Registry {
     ops: BTreeMap<String, Arc<dyn Op>>,
+    /// Plugin libraries loaded into this registry (canonical paths), with
+    /// the ops each declared.
+    plugins: BTreeMap<std::path::PathBuf, Vec<String>>,
 }
 
 impl Registry {
@@ -39,6 +42,16 @@ impl Registry {
         }
         self.ops.insert(name, op);
         Ok(())
+    }
+
+    /// Records that the plugin at `file` (canonical) declared `ops`.
+    pub fn add_plugin(&mut self, file: std::path::PathBuf, ops: Vec<String>) {
+        self.plugins.insert(file, ops);
+    }
+
+    /// The ops of the plugin at `file` (canonical), if it is loaded.
+    pub fn plugin_ops(&self, file: &std::path::Path) -> Option<&[String]> {
+        self.plugins.get(file).map(Vec::as_slice)
     }
 
     /// The node type called `name`.

@@ -277,7 +277,7 @@ impl<'a> Executor<'a> {
             Err(panic) => Err(format!(
                 "op `{}` panicked: {}",
                 spec.name,
-                panic_message(&panic)
+                crate::panics::message(panic.as_ref())
             )),
         };
         let result = crate::workdir::settle(result, files);
@@ -447,12 +447,4 @@ fn check_outputs(
         )));
     }
     Ok(())
-}
-
-fn panic_message(panic: &Box<dyn std::any::Any + Send>) -> String {
-    panic
-        .downcast_ref::<&str>()
-        .map(|s| s.to_string())
-        .or_else(|| panic.downcast_ref::<String>().cloned())
-        .unwrap_or_else(|| "unknown panic".into())
 }

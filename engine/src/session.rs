@@ -3,7 +3,7 @@
 //! the figures and `report.html`.
 
 use crate::cache::MemoryCache;
-use crate::error::GraphErrors;
+use crate::error::{ErrorKind, GraphError, GraphErrors};
 use crate::figure::FigureData;
 use crate::graph::GraphDoc;
 use crate::key::node_keys;
@@ -25,13 +25,26 @@ pub enum RunError {
     Io(#[from] std::io::Error),
 }
 
-/// Loads `file`, applies `overrides` (`ID.KEY=VALUE`) and validates it.
+/// Loads `file`, loads the plugins its `[graph] plugins` names (on top of
+/// `registry`'s ops), applies `overrides` (`ID.KEY=VALUE`) and validates it.
 pub fn load_graph(
     file: &Path,
     overrides: &[String],
     registry: &Registry,
 ) -> Result<ValidGraph, GraphErrors> {
     let mut doc = GraphDoc::load(file)?;
+    let with_plugins;
+    let registry = if doc.plugins.is_empty() {
+        registry
+    } else {
+        let mut r = registry.clone();
+        for p in &doc.plugins {
+            crate::plugin::load_plugin(p, &mut r)
+                .map_err(|why| GraphError::file(ErrorKind::Plugin, file, why).at_key("plugins"))?;
+        }
+        with_plugins = r;
+        &with_plugins
+    };
     let errors: Vec<_> = overrides
         .iter()
         .filter_map(|s| doc.apply_set(s).err())

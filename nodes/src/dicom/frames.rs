@@ -10,6 +10,7 @@ use dicom_dictionary_std::tags;
 use dicom_object::{DefaultDicomObject, InMemDicomObject};
 use dicom_pixeldata::PixelDecoder;
 use dicom_transfer_syntax_registry::TransferSyntaxIndex;
+use fusegraph_engine::panics::catch_quietly;
 use std::path::{Path, PathBuf};
 
 /// One 2D image with its place in patient space (LPS, mm).
@@ -194,15 +195,6 @@ fn not_an_image(obj: &DefaultDicomObject) -> Option<String> {
     Some(format!("{} (no pixel data)", sop_class_name(&class)))
 }
 
-/// The text of a caught panic's payload.
-fn panic_text(payload: &(dyn std::any::Any + Send)) -> String {
-    payload
-        .downcast_ref::<&str>()
-        .map(|s| s.to_string())
-        .or_else(|| payload.downcast_ref::<String>().cloned())
-        .unwrap_or_else(|| "the decoder panicked".into())
-}
-
 /// An error and its sources, "outer: inner: innermost".
 fn error_chain(e: &dyn std::error::Error) -> String {
     let mut text = e.to_string();
@@ -230,15 +222,15 @@ const JPEG_LS: [&str; 2] = ["1.2.840.10008.1.2.4.80", "1.2.840.10008.1.2.4.81"];
 /// module ([`pixel_format`]), the PixelData size against the dimensions and a
 /// memory cap ([`check_pixel_size`]), and rescale and geometry numbers (they
 /// must parse and be finite; spacing positive and sane; orientation
-/// orthonormal). `catch_unwind` around the decoder stays as the last defence.
+/// orthonormal). A caught panic around the parser and the decoder stays as
+/// the last defence.
 pub fn read_file(path: &Path) -> Result<FileContent, String> {
     check_lengths(path)?;
-    let obj: DefaultDicomObject = std::panic::catch_unwind(|| dicom_object::open_file(path))
-        .map_err(|payload| {
+    let obj: DefaultDicomObject = catch_quietly(|| dicom_object::open_file(path))
+        .map_err(|panic| {
             format!(
-                "{}: unreadable DICOM file: the parser failed on it: {}",
-                path.display(),
-                panic_text(payload.as_ref())
+                "{}: unreadable DICOM file: the parser failed on it: {panic}",
+                path.display()
             )
         })?
         .map_err(|e| format!("{}: unreadable DICOM file: {e}", path.display()))?;
@@ -285,16 +277,13 @@ pub fn read_file(path: &Path) -> Result<FileContent, String> {
         )
     })?;
     check_rescale(&obj, path)?;
-    let decoded = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-        decode_frames(&obj, path, &syntax, &syntax_name, &format)
-    }))
-    .unwrap_or_else(|payload| {
-        Err(format!(
-            "{}: pixel data could not be decoded ({syntax_name}): the decoder failed on it (truncated or corrupt data?): {} [transfer syntax {syntax}]",
-            path.display(),
-            panic_text(payload.as_ref())
-        ))
-    })?;
+    let decoded = catch_quietly(|| decode_frames(&obj, path, &syntax, &syntax_name, &format))
+        .unwrap_or_else(|panic| {
+            Err(format!(
+                "{}: pixel data could not be decoded ({syntax_name}): the decoder failed on it (truncated or corrupt data?): {panic} [transfer syntax {syntax}]",
+                path.display()
+            ))
+        })?;
     Ok(FileContent::Frames(decoded))
 }
 

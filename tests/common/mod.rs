@@ -18,8 +18,7 @@ pub fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
-/// Runs the `fusegraph` binary with `args` in `cwd`.
-#[allow(dead_code)] // not every test binary uses itunder an address-space
+/// Runs the `fusegraph` binary with `args` in `cwd` under an address-space
 /// limit of `memory_bytes` (so a run that would allocate beyond it fails, as
 /// under a cluster's memory limit), killing it if it runs longer than `time`:
 /// a hang fails the test instead of stalling the suite.

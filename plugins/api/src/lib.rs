@@ -3,7 +3,7 @@
 //! ([`abi`]); this crate wraps both of its sides in safe Rust, so a plugin op
 //! is about as short as a built-in one:
 //!
-//! ```ignore
+//! ```
 //! use fusegraph_plugin_api::{Inputs, OpDecl, Outputs, Param, Params, PluginOp, export_plugin};
 //!
 //! struct Invert;

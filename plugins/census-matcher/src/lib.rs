@@ -20,7 +20,7 @@ use fusegraph_plugin_api::{
 pub struct CensusMatch;
 
 /// Grey levels of an image (luma of RGB; floats taken as 0..=1).
-fn grey(im: &ImageView) -> Vec<u8> {
+pub fn grey(im: &ImageView) -> Vec<u8> {
     let level = |v: f32| (v * 255.0).round().clamp(0.0, 255.0) as u8;
     match (im.pixels, im.channels) {
         (PixelsView::U8(p), 1) => p.to_vec(),

@@ -12,7 +12,6 @@
 //! truncated or corrupt entry fails its length or checksum test and is recomputed.
 
 use crate::figure::{Figure, FigureData};
-use crate::hash::hash_path;
 use crate::key::NodeKey;
 use crate::op::Outputs;
 use crate::value::{Reader, Value, Writer, encode_value};
@@ -43,21 +42,7 @@ impl CacheEntry {
     /// Whether every `Path` output still holds the content it was recorded with
     /// (a cached path that was edited or deleted makes the entry stale).
     pub fn paths_intact(&self) -> Result<(), String> {
-        for (port, value) in &self.outputs.0 {
-            if let Value::Path(p) = value {
-                match hash_path(&p.path) {
-                    Ok(h) if h.to_hex().as_str() == p.content_hash => {}
-                    Ok(_) => {
-                        return Err(format!(
-                            "output `{port}`: {} was modified",
-                            p.path.display()
-                        ));
-                    }
-                    Err(e) => return Err(format!("output `{port}`: {e}")),
-                }
-            }
-        }
-        Ok(())
+        self.outputs.paths_intact()
     }
 }
 

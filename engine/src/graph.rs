@@ -14,7 +14,6 @@
 
 use crate::each::{Group, expand};
 use crate::error::{ErrorKind, GraphError, GraphErrors, closest};
-use crate::report_html::Reference;
 use std::path::{Path, PathBuf};
 
 /// A connection as written: input `port` takes output `source_port` of node
@@ -40,6 +39,17 @@ pub struct NodeDecl {
     pub inputs: Vec<InputDecl>,
     /// Parameters as TOML values, in file order.
     pub params: Vec<(String, toml::Value)>,
+}
+
+/// A figure from elsewhere to show beside one of ours (e.g. the paper's).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Reference {
+    /// Our metric, `node.metric`.
+    pub metric: String,
+    /// Their value.
+    pub value: f64,
+    /// Where it comes from and what it measures.
+    pub note: String,
 }
 
 /// A graph file as written, before validation.

@@ -99,7 +99,7 @@ pub fn try_acquire(path: &Path) -> io::Result<Acquired> {
             .open(path)
         {
             Ok(mut f) => {
-                writeln!(f, "{} {}", crate::workdir::host_name(), std::process::id())?;
+                writeln!(f, "{} {}", crate::process::host_name(), std::process::id())?;
                 held_set().insert(path.to_path_buf());
                 return Ok(Acquired::Held(Lease {
                     path: path.to_path_buf(),
@@ -132,8 +132,8 @@ fn is_stale(path: &Path) -> bool {
         words.next(),
         words.next().and_then(|p| p.parse::<u32>().ok()),
     ) {
-        (Some(host), Some(pid)) if host == crate::workdir::host_name() => {
-            !crate::workdir::process_alive(pid)
+        (Some(host), Some(pid)) if host == crate::process::host_name() => {
+            !crate::process::process_alive(pid)
         }
         _ => std::fs::metadata(path)
             .and_then(|m| m.modified())
@@ -161,7 +161,7 @@ mod tests {
             let mut child = std::process::Command::new("true").spawn().unwrap();
             let dead = child.id();
             child.wait().unwrap();
-            std::fs::write(&path, format!("{} {dead}\n", crate::workdir::host_name())).unwrap();
+            std::fs::write(&path, format!("{} {dead}\n", crate::process::host_name())).unwrap();
             assert!(matches!(try_acquire(&path).unwrap(), Acquired::Held(_)));
         }
     }

@@ -20,6 +20,7 @@ pub mod op;
 pub mod panics;
 pub mod param;
 pub mod plugin;
+pub mod process;
 pub mod registry;
 pub mod report;
 pub mod report_html;

@@ -293,17 +293,52 @@ impl Outputs {
         self.0.insert(port.into(), value.into());
         self
     }
+
+    /// Whether every `Path` output still holds the content it was recorded
+    /// with (one that was edited or deleted makes a cached result stale).
+    pub fn paths_intact(&self) -> Result<(), String> {
+        for (port, value) in &self.0 {
+            if let Value::Path(p) = value {
+                match crate::hash::hash_path(&p.path) {
+                    Ok(h) if h.to_hex().as_str() == p.content_hash => {}
+                    Ok(_) => {
+                        return Err(format!(
+                            "output `{port}`: {} was modified",
+                            p.path.display()
+                        ));
+                    }
+                    Err(e) => return Err(format!("output `{port}`: {e}")),
+                }
+            }
+        }
+        Ok(())
+    }
 }
 
+/// Makes (once) and returns the private folder an op writes its files into;
+/// the engine's scheduler gives one (see [`RunCtx::work_dir`]).
+pub type FilesFolder<'a> = Box<dyn FnMut() -> Result<PathBuf, OpError> + Send + 'a>;
+
 /// What an op may use while it runs besides its inputs and parameters.
-#[derive(Debug)]
-pub struct RunCtx {
+pub struct RunCtx<'a> {
     node_id: String,
     out_dir: PathBuf,
     metrics: BTreeMap<String, f64>,
     figures: Vec<crate::figure::Figure>,
     notes: Vec<String>,
-    files: Option<crate::workdir::WorkDir>,
+    files: Option<FilesFolder<'a>>,
+}
+
+impl std::fmt::Debug for RunCtx<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RunCtx")
+            .field("node_id", &self.node_id)
+            .field("out_dir", &self.out_dir)
+            .field("metrics", &self.metrics)
+            .field("notes", &self.notes)
+            .field("files", &self.files.is_some())
+            .finish_non_exhaustive()
+    }
 }
 
 /// What a run of an op recorded besides its outputs.
@@ -317,7 +352,7 @@ pub struct RunResults {
     pub notes: Vec<String>,
 }
 
-impl RunCtx {
+impl<'a> RunCtx<'a> {
     /// A context for node `node_id` whose sinks write under `out_dir`.
     pub fn new(node_id: &str, out_dir: &Path) -> Self {
         RunCtx {
@@ -330,18 +365,14 @@ impl RunCtx {
         }
     }
 
-    /// Lets the op write files into a content-addressed folder (see
-    /// [`RunCtx::work_dir`]) that becomes `files_root/<key>` when it succeeds.
-    pub fn with_files(mut self, files_root: &Path, key_hex: &str) -> Self {
-        self.files = Some(crate::workdir::WorkDir::new(files_root, key_hex));
-        self
-    }
-
-    /// As [`RunCtx::with_files`], falling back to `fallback_root` when
-    /// `files_root` cannot be written (a read-only cache).
-    pub fn with_files_or(mut self, files_root: &Path, fallback_root: &Path, key_hex: &str) -> Self {
-        self.files =
-            Some(crate::workdir::WorkDir::new(files_root, key_hex).with_fallback(fallback_root));
+    /// Lets the op write files into the folder that `make` creates (once);
+    /// the scheduler moves it into the cache under the node's key when the
+    /// op succeeds (see [`RunCtx::work_dir`]).
+    pub fn with_files(
+        mut self,
+        make: impl FnMut() -> Result<PathBuf, OpError> + Send + 'a,
+    ) -> Self {
+        self.files = Some(Box::new(make));
         self
     }
 
@@ -350,16 +381,11 @@ impl RunCtx {
     /// the engine moves it into the cache under the node's key and rewrites the
     /// `Path` outputs that point into it. Only ops run by the scheduler have one.
     pub fn work_dir(&mut self) -> Result<PathBuf, OpError> {
-        let files = self
+        let make = self
             .files
             .as_mut()
             .ok_or_else(|| OpError::invalid("this context has no folder for output files"))?;
-        files.create()
-    }
-
-    /// Takes the files folder, if the op asked for one.
-    pub(crate) fn take_files(&mut self) -> Option<crate::workdir::WorkDir> {
-        self.files.take()
+        make()
     }
 
     /// The id of the node being run.

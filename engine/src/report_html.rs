@@ -7,19 +7,9 @@
 //! `file://` with no server and no network.
 
 use crate::figure::FigureData;
+pub use crate::graph::Reference;
 use crate::report::{NodeStatus, RunReport, figure_refs};
 use std::fmt::Write;
-
-/// A figure from elsewhere to show beside one of ours (e.g. the paper's).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Reference {
-    /// Our metric, `node.metric`.
-    pub metric: String,
-    /// Their value.
-    pub value: f64,
-    /// Where it comes from and what it measures.
-    pub note: String,
-}
 
 /// Escapes text for HTML.
 fn esc(s: &str) -> String {

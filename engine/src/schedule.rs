@@ -255,18 +255,20 @@ impl<'a> Executor<'a> {
         let sink_dir = staging
             .as_ref()
             .map_or(self.options.out_dir.as_path(), |s| s.dir());
-        let mut ctx = RunCtx::new(&node.id, sink_dir).with_files_or(
-            &files_root,
-            &self.options.out_dir.join(".work"),
-            &key.hex(),
-        );
-        let outcome = catch_unwind(AssertUnwindSafe(|| {
-            node.op.run(&inputs, &node.params, &mut ctx)
-        }));
+        let mut files = crate::workdir::WorkDir::new(&files_root, &key.hex())
+            .with_fallback(&self.options.out_dir.join(".work"));
+        let (outcome, mut results) = {
+            let mut ctx = RunCtx::new(&node.id, sink_dir).with_files(|| files.create());
+            let outcome = catch_unwind(AssertUnwindSafe(|| {
+                node.op.run(&inputs, &node.params, &mut ctx)
+            }));
+            (outcome, ctx.into_results())
+        };
         self.set_running(&node.id, false);
-        let files = ctx.take_files();
-        if let Some(why) = files.as_ref().and_then(|f| f.fell_back()) {
-            ctx.note(format!("the cache's files folder cannot be written: {why}"));
+        if let Some(why) = files.fell_back() {
+            results
+                .notes
+                .push(format!("the cache's files folder cannot be written: {why}"));
         }
         let spec = node.op.spec();
         let result = match outcome {
@@ -280,12 +282,11 @@ impl<'a> Executor<'a> {
                 crate::panics::message(panic.as_ref())
             )),
         };
-        let result = crate::workdir::settle(result, files);
+        let result = crate::workdir::settle(result, Some(files));
         let result = crate::workdir::settle(result, staging);
         let outputs = match result {
             Ok(outputs) => outputs,
             Err(msg) => {
-                let results = ctx.into_results();
                 return self.failure(
                     &node.id,
                     NodeReport {
@@ -295,7 +296,6 @@ impl<'a> Executor<'a> {
                 );
             }
         };
-        let results = ctx.into_results();
         let entry = Arc::new(CacheEntry {
             outputs,
             metrics: results.metrics,

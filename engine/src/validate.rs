@@ -49,7 +49,7 @@ pub struct ValidGraph {
     /// Node indices in a topological order (every node after its inputs).
     pub order: Vec<usize>,
     /// Figures from elsewhere the report shows beside ours (`[graph.references]`).
-    pub references: Vec<crate::report_html::Reference>,
+    pub references: Vec<crate::graph::Reference>,
 }
 
 impl ValidGraph {

@@ -5,49 +5,12 @@
 //! keep whichever folder landed first when its content matches.
 
 use crate::op::{OpError, Outputs};
+use crate::process::{host_name, process_alive};
 use crate::value::{PathValue, Value};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
 static COUNTER: AtomicU64 = AtomicU64::new(0);
-
-/// This machine's name as it appears in temporary folder names (letters,
-/// digits, `.` and `_` only), so that on a shared cache a process cleans only
-/// what its own machine's dead processes left.
-pub(crate) fn host_name() -> &'static str {
-    static NAME: std::sync::OnceLock<String> = std::sync::OnceLock::new();
-    NAME.get_or_init(|| {
-        let raw = std::fs::read_to_string("/proc/sys/kernel/hostname")
-            .or_else(|_| std::fs::read_to_string("/etc/hostname"))
-            .unwrap_or_else(|_| "localhost".into());
-        let name: String = raw
-            .trim()
-            .chars()
-            .map(|c| {
-                if c.is_ascii_alphanumeric() || c == '.' {
-                    c
-                } else {
-                    '_'
-                }
-            })
-            .collect();
-        if name.is_empty() {
-            "localhost".into()
-        } else {
-            name
-        }
-    })
-}
-
-/// Whether process `pid` of this machine is alive; `true` where that cannot
-/// be told (so nothing of a live process is ever removed).
-pub(crate) fn process_alive(pid: u32) -> bool {
-    if cfg!(target_os = "linux") {
-        Path::new("/proc").join(pid.to_string()).exists()
-    } else {
-        true
-    }
-}
 
 /// Removes the temporary folders under `files_root` that this machine's
 /// processes left when they died mid-run (kill -9, power loss): a folder
@@ -344,12 +307,7 @@ fn rewrite(outputs: &Outputs, from: &Path, to: &Path) -> Outputs {
 
 /// Whether every `Path` output holds its recorded content.
 fn outputs_hold(outputs: &Outputs) -> bool {
-    crate::cache::CacheEntry {
-        outputs: outputs.clone(),
-        ..Default::default()
-    }
-    .paths_intact()
-    .is_ok()
+    outputs.paths_intact().is_ok()
 }
 
 #[cfg(test)]

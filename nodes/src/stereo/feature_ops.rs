@@ -470,7 +470,7 @@ mod tests {
         op: &dyn Op,
         inputs: Inputs,
         set: &[(&str, fusegraph_engine::ParamValue)],
-    ) -> Result<(Outputs, RunCtx), OpError> {
+    ) -> Result<(Outputs, RunCtx<'static>), OpError> {
         let mut params = Params::default();
         for p in &op.spec().params {
             params.0.insert(p.name.clone(), p.default.clone().unwrap());

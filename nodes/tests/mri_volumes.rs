@@ -7,32 +7,40 @@ use fusegraph_engine::schedule::RunOptions;
 use fusegraph_engine::session::{load_graph, run};
 use fusegraph_nodes::io::{VoxelBuf, read_nifti, read_nrrd};
 use fusegraph_nodes::mri::{TriangleMesh, self_intersections};
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+/// graphs/mri.toml with only the nodes `keep`, written into `dir`.
+fn mri_graph_with(dir: &Path, keep: &[&str]) -> PathBuf {
+    let text =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../graphs/mri.toml"))
+            .unwrap();
+    let kept: Vec<&str> = text
+        .split("\n[node.")
+        .enumerate()
+        .filter(|(i, section)| {
+            *i == 0 || keep.iter().any(|k| section.starts_with(&format!("{k}]")))
+        })
+        .map(|(_, s)| s)
+        .collect();
+    let file = dir.join("mri.toml");
+    std::fs::write(&file, kept.join("\n[node.")).unwrap();
+    file
+}
 
 #[test]
 fn mri_graph_writes_the_stretched_volume_and_the_otsu_mask_with_their_geometry() {
     // The graph up to Otsu and its two volume sinks (the rest is tested by the
     // CLI's end-to-end tests).
-    let text =
-        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../graphs/mri.toml"))
-            .unwrap();
     let keep = [
-        "phantom]",
-        "load]",
-        "stretch]",
-        "otsu]",
-        "write_stretched]",
-        "write_mask]",
+        "phantom",
+        "load",
+        "stretch",
+        "otsu",
+        "write_stretched",
+        "write_mask",
     ];
-    let kept: Vec<&str> = text
-        .split("\n[node.")
-        .enumerate()
-        .filter(|(i, section)| *i == 0 || keep.iter().any(|k| section.starts_with(k)))
-        .map(|(_, s)| s)
-        .collect();
     let t = tempfile::tempdir().unwrap();
-    let file = t.path().join("mri.toml");
-    std::fs::write(&file, kept.join("\n[node.")).unwrap();
+    let file = mri_graph_with(t.path(), &keep);
     let registry = fusegraph_nodes::builtin_registry();
     let graph = load_graph(&file, &["phantom.size=small".into()], &registry).unwrap();
     assert_eq!(graph.nodes.len(), keep.len());
@@ -82,19 +90,8 @@ fn mri_graph_writes_the_stretched_volume_and_the_otsu_mask_with_their_geometry()
 /// Open3D took such pairs for intersections.
 #[test]
 fn the_phantom_skin_surface_has_no_self_intersections() {
-    let text =
-        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../graphs/mri.toml"))
-            .unwrap();
-    let keep = ["phantom]", "load]", "stretch]", "otsu]", "surface]"];
-    let kept: Vec<&str> = text
-        .split("\n[node.")
-        .enumerate()
-        .filter(|(i, section)| *i == 0 || keep.iter().any(|k| section.starts_with(k)))
-        .map(|(_, s)| s)
-        .collect();
     let t = tempfile::tempdir().unwrap();
-    let file = t.path().join("mri.toml");
-    std::fs::write(&file, kept.join("\n[node.")).unwrap();
+    let file = mri_graph_with(t.path(), &["phantom", "load", "stretch", "otsu", "surface"]);
     let registry = fusegraph_nodes::builtin_registry();
     let clearance_mm = 1e-3 * 1.5;
     for smoothing in [0, 10] {

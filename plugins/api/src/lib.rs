@@ -117,21 +117,9 @@ impl Plugin {
         }
         // SAFETY: the host passes a valid result to fill.
         let result = unsafe { &mut *result };
-        let slice = |p: *const FgInput, n| {
-            if n == 0 || p.is_null() {
-                &[][..]
-            } else {
-                // SAFETY: the host passes `n` inputs at `p`.
-                unsafe { std::slice::from_raw_parts(p, n) }
-            }
-        };
-        let inputs = slice(inputs, n_inputs);
-        let params = if n_params == 0 || params.is_null() {
-            &[][..]
-        } else {
-            // SAFETY: the host passes `n_params` parameters at `params`.
-            unsafe { std::slice::from_raw_parts(params, n_params) }
-        };
+        // SAFETY: the host passes `n_inputs` inputs and `n_params` parameters.
+        let (inputs, params) =
+            unsafe { (host_slice(inputs, n_inputs), host_slice(params, n_params)) };
         IN_OP.with(|f| f.set(true));
         let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             let op = self
@@ -174,6 +162,19 @@ impl Plugin {
                 output::free_result(&mut *result)
             }));
         }
+    }
+}
+
+/// `n` elements at `p`, empty when `n` is 0 or `p` null.
+///
+/// # Safety
+/// A non-zero `n` with a non-null `p` needs `n` valid elements there for `'a`.
+unsafe fn host_slice<'a, T>(p: *const T, n: usize) -> &'a [T] {
+    if n == 0 || p.is_null() {
+        &[]
+    } else {
+        // SAFETY: as the caller guarantees.
+        unsafe { std::slice::from_raw_parts(p, n) }
     }
 }
 

@@ -123,29 +123,34 @@ impl Outputs {
         self.push(port, v);
     }
 
-    /// Voxels on `port`: `dims = [nx, ny, nz]`, x fastest, with the row-major
-    /// voxel -> patient (LPS, mm) matrix. `kind` is `Volume` (f32 data).
-    pub fn volume(&mut self, port: &str, dims: [usize; 3], affine: [f64; 16], data: Vec<f32>) {
+    fn grid(
+        &mut self,
+        port: &str,
+        value_type: u32,
+        dims: [usize; 3],
+        affine: [f64; 16],
+        data: Buffer,
+    ) {
         let shape = vec![dims[2] as u64, dims[1] as u64, dims[0] as u64];
-        let mut v = Self::plain(value_type::VOLUME, shape, Buffer::F32(data));
+        let mut v = Self::plain(value_type, shape, data);
         v.affine = affine;
         self.push(port, v);
+    }
+
+    /// Voxels on `port`: `dims = [nx, ny, nz]`, x fastest, with the row-major
+    /// voxel -> patient (LPS, mm) matrix.
+    pub fn volume(&mut self, port: &str, dims: [usize; 3], affine: [f64; 16], data: Vec<f32>) {
+        self.grid(port, value_type::VOLUME, dims, affine, Buffer::F32(data));
     }
 
     /// A mask (0/1) on `port`, as [`Outputs::volume`].
     pub fn mask(&mut self, port: &str, dims: [usize; 3], affine: [f64; 16], data: Vec<u8>) {
-        let shape = vec![dims[2] as u64, dims[1] as u64, dims[0] as u64];
-        let mut v = Self::plain(value_type::MASK, shape, Buffer::U8(data));
-        v.affine = affine;
-        self.push(port, v);
+        self.grid(port, value_type::MASK, dims, affine, Buffer::U8(data));
     }
 
     /// Labels on `port`, as [`Outputs::volume`].
     pub fn labels(&mut self, port: &str, dims: [usize; 3], affine: [f64; 16], data: Vec<u32>) {
-        let shape = vec![dims[2] as u64, dims[1] as u64, dims[0] as u64];
-        let mut v = Self::plain(value_type::LABELS, shape, Buffer::U32(data));
-        v.affine = affine;
-        self.push(port, v);
+        self.grid(port, value_type::LABELS, dims, affine, Buffer::U32(data));
     }
 
     /// A metric (unit in the name: `coverage_pct`).

@@ -117,8 +117,9 @@ fn count<const MAX: usize>(s: &str) -> Result<usize, String> {
     }
 }
 
-/// A graph of `n` trivial nodes: 10 constants, then binary nodes each reading two
-/// earlier nodes chosen by a fixed pseudo-random sequence (wide and deep).
+/// A graph of `n` trivial nodes: 10 constants, then binary nodes each reading
+/// an earlier node chosen by a fixed pseudo-random sequence (wide and deep),
+/// and either n0 (every other node: a hub) or another such node.
 pub fn trivial_graph(n: usize) -> String {
     let mut s = String::from("[graph]\nname = \"bench\"\n");
     let constants = n.min(10);
@@ -133,7 +134,10 @@ pub fn trivial_graph(n: usize) -> String {
         ((state >> 33) as usize) % below
     };
     for i in constants..n {
-        let (a, b) = (pick(i), pick(i));
+        // Every other node also reads n0: a hub feeding half the graph, the
+        // shape that made validation quadratic once.
+        let a = pick(i);
+        let b = if i % 2 == 0 { 0 } else { pick(i) };
         let op = ["add", "sub", "max", "min"][i % 4];
         let _ = write!(
             s,

@@ -305,7 +305,10 @@ fn topological_order(nodes: &[ValidNode]) -> Result<Vec<usize>, Vec<Vec<usize>>>
     let idx: Vec<NodeIndex> = (0..nodes.len()).map(|i| g.add_node(i)).collect();
     for (i, n) in nodes.iter().enumerate() {
         for e in &n.inputs {
-            g.update_edge(idx[e.from], idx[i], ());
+            // add_edge, not update_edge: that one scans the source's edges,
+            // quadratic when one node feeds all the others. Parallel edges do
+            // not change the order or the cycles.
+            g.add_edge(idx[e.from], idx[i], ());
         }
     }
     match petgraph::algo::toposort(&g, None) {

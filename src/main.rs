@@ -60,6 +60,32 @@ enum Command {
         #[arg(long, short = 'j', default_value_t = 0)]
         jobs: usize,
     },
+    /// Run every variant of a sweep against one cache and compare them:
+    /// DIR/<variant>/report.json, DIR/comparison.{csv,md,html}.
+    Sweep {
+        /// The sweep file (not needed with --merge).
+        #[arg(required_unless_present = "merge")]
+        sweep: Option<PathBuf>,
+        /// Output folder [default: out/<sweep name>].
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Cache folder shared by every variant [default: .fusegraph/cache beside the base graph].
+        #[arg(long, conflicts_with = "no_cache")]
+        cache: Option<PathBuf>,
+        /// No disk cache: variants share results in memory only.
+        #[arg(long)]
+        no_cache: bool,
+        /// Worker threads per variant's run [default: one per core].
+        #[arg(long, short = 'j', default_value_t = 0)]
+        jobs: usize,
+        /// Run only the I-th of N slices of the variants (I from 1, as
+        /// `#SBATCH --array=1-N` numbers them); merge the folder afterwards.
+        #[arg(long, value_name = "I/N", value_parser = parse_shard)]
+        shard: Option<(usize, usize)>,
+        /// Build the comparison from a sweep folder the shards wrote.
+        #[arg(long, value_name = "DIR", conflicts_with_all = ["sweep", "shard", "out", "cache", "no_cache"])]
+        merge: Option<PathBuf>,
+    },
     /// Check a graph without running it.
     Validate {
         /// The graph file.
@@ -196,6 +222,72 @@ fn execute(cli: Cli, registry: &Registry) -> anyhow::Result<ExitCode> {
                 ExitCode::from(EXIT_FAILED)
             })
         }
+        Command::Sweep {
+            sweep,
+            out,
+            cache,
+            no_cache,
+            jobs,
+            shard,
+            merge,
+        } => {
+            if let Some(dir) = merge {
+                return compare_sweep(&dir);
+            }
+            let plan = fusegraph_engine::sweep::load_sweep(&sweep.expect("clap requires it"))?;
+            let graphs = fusegraph_engine::sweep::validate_variants(&plan, registry)?;
+            let out_dir = out.unwrap_or_else(|| Path::new("out").join(folder_name(&plan.name)));
+            if out_dir.exists() && !out_dir.is_dir() {
+                anyhow::bail!("--out {}: is a file, not a folder", out_dir.display());
+            }
+            let options = fusegraph_engine::sweep::SweepOptions {
+                out_dir: out_dir.clone(),
+                cache: (!no_cache).then(|| {
+                    cache.unwrap_or_else(|| fusegraph_engine::sweep::default_cache(&plan))
+                }),
+                jobs,
+                shard,
+            };
+            let mine = fusegraph_engine::sweep::shard_of(plan.variants.len(), shard).len();
+            eprintln!(
+                "sweep `{}`: {} variants{}, all valid",
+                plan.name,
+                plan.variants.len(),
+                shard
+                    .map(|(i, n)| format!(" ({mine} in shard {i}/{n})"))
+                    .unwrap_or_default()
+            );
+            let runs = fusegraph_engine::sweep::run_sweep(&plan, &graphs, &options, |r| {
+                eprintln!(
+                    "{:>8} {:<40} {:>9.1} ms  {} computed, {} reused{}",
+                    if r.succeeded { "done" } else { "FAILED" },
+                    r.name,
+                    r.ms,
+                    r.ran,
+                    r.cached,
+                    r.error
+                        .as_deref()
+                        .map(|e| format!(": {e}"))
+                        .unwrap_or_default()
+                );
+            })
+            .with_context(|| format!("sweep into {}", out_dir.display()))?;
+            let (ran, reused): (usize, usize) = runs
+                .iter()
+                .fold((0, 0), |a, r| (a.0 + r.ran, a.1 + r.cached));
+            eprintln!(
+                "{} node runs: {ran} computed, {reused} reused from other variants or earlier runs",
+                ran + reused
+            );
+            if shard.is_some_and(|(_, n)| n > 1) {
+                eprintln!(
+                    "shard done; when every shard is: fusegraph sweep --merge {}",
+                    out_dir.display()
+                );
+                return Ok(ExitCode::SUCCESS);
+            }
+            compare_sweep(&out_dir)
+        }
         Command::Validate { graph, edit } => {
             let valid = load_graph(&graph, &edit.sets, registry)?;
             println!(
@@ -271,6 +363,61 @@ fn execute(cli: Cli, registry: &Registry) -> anyhow::Result<ExitCode> {
             bench::run_bench(what, registry)?;
             Ok(ExitCode::SUCCESS)
         }
+    }
+}
+
+/// `I/N` with 1 <= I <= N.
+fn parse_shard(s: &str) -> Result<(usize, usize), String> {
+    let (i, n) = s.split_once('/').ok_or("expected I/N, e.g. 3/8")?;
+    let (i, n): (usize, usize) = (
+        i.trim()
+            .parse()
+            .map_err(|_| format!("{i:?} is not a number"))?,
+        n.trim()
+            .parse()
+            .map_err(|_| format!("{n:?} is not a number"))?,
+    );
+    if n == 0 || i == 0 || i > n || n > 100_000 {
+        return Err(format!("{i}/{n}: need 1 <= I <= N <= 100000"));
+    }
+    Ok((i, n))
+}
+
+/// Builds and writes the comparison of the sweep folder `dir`; exit 1 when a
+/// variant failed or is missing.
+fn compare_sweep(dir: &Path) -> anyhow::Result<ExitCode> {
+    use fusegraph_engine::sweep::compare::{Status, comparison, write_comparison};
+    let c = comparison(dir).map_err(anyhow::Error::msg)?;
+    write_comparison(&c, dir)
+        .with_context(|| format!("writing the comparison into {}", dir.display()))?;
+    let bad: Vec<String> = c
+        .rows
+        .iter()
+        .filter(|r| r.status != Status::Done)
+        .map(|r| format!("{} ({})", r.variant, r.status.name()))
+        .collect();
+    match c.best() {
+        Some(best) => eprintln!(
+            "best by {}: {}",
+            c.rank_by
+                .as_ref()
+                .map(|(m, b)| format!("{m} ({} is better)", b.name()))
+                .unwrap_or_default(),
+            best.variant
+        ),
+        None => eprintln!("no best variant (no rank metric, or no variant finished with it)"),
+    }
+    eprintln!("comparison: {}", dir.join("comparison.html").display());
+    if bad.is_empty() {
+        Ok(ExitCode::SUCCESS)
+    } else {
+        eprintln!(
+            "{} of {} variants did not finish: {}",
+            bad.len(),
+            c.rows.len(),
+            bad.join(", ")
+        );
+        Ok(ExitCode::from(EXIT_FAILED))
     }
 }
 

@@ -162,6 +162,8 @@ impl GraphDoc {
                         }
                     }
                 }
+                // A sweep over this graph (see `crate::sweep`), read there.
+                ("sweep" | "variant", toml::Value::Table(_)) => {}
                 ("each", toml::Value::Table(g)) => {
                     for (name, body) in g {
                         match expand(name, body, file) {
@@ -250,7 +252,19 @@ impl GraphDoc {
             .split_once('.')
             .ok_or_else(|| bad(format!("--set {assignment:?}: expected ID.KEY=VALUE")))?;
         let value = parse_cli_value(raw.trim());
-        // A node, or every copy of a node of an [each] group.
+        self.set(id, key, &value, "--set")
+    }
+
+    /// Sets `key` (a parameter, `op` or `in.PORT`) of node `id`, or of every
+    /// copy of an `[each]` group's node `id`, to `value`; `by` names who asks
+    /// in errors (`--set`, `variant v03`).
+    pub fn set(
+        &mut self,
+        id: &str,
+        key: &str,
+        value: &toml::Value,
+        by: &str,
+    ) -> Result<(), GraphError> {
         let targets: Vec<String> = if self.nodes.iter().any(|n| n.id == id) {
             vec![id.to_string()]
         } else if let Some(copies) = self.groups.iter().find_map(|g| g.copies_of(id)) {
@@ -265,7 +279,7 @@ impl GraphDoc {
             return Err(GraphError::file(
                 ErrorKind::BadOverride,
                 &self.file,
-                format!("--set: no node with this id{}", hint.unwrap_or_default()),
+                format!("{by}: no node with this id{}", hint.unwrap_or_default()),
             )
             .at_node(id)
             .at_key(key));
@@ -277,8 +291,8 @@ impl GraphDoc {
                 .iter_mut()
                 .find(|n| n.id == target)
                 .expect("targets are node ids");
-            set_on_node(node, key, &value).map_err(|msg| {
-                GraphError::file(ErrorKind::BadOverride, &file, format!("--set: {msg}"))
+            set_on_node(node, key, value).map_err(|msg| {
+                GraphError::file(ErrorKind::BadOverride, &file, format!("{by}: {msg}"))
                     .at_node(id)
                     .at_key(key)
             })?;

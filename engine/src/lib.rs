@@ -26,6 +26,7 @@ pub mod report;
 pub mod report_html;
 pub mod schedule;
 pub mod session;
+pub mod sweep;
 pub mod validate;
 pub mod value;
 pub mod workdir;

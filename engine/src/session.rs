@@ -33,18 +33,7 @@ pub fn load_graph(
     registry: &Registry,
 ) -> Result<ValidGraph, GraphErrors> {
     let mut doc = GraphDoc::load(file)?;
-    let with_plugins;
-    let registry = if doc.plugins.is_empty() {
-        registry
-    } else {
-        let mut r = registry.clone();
-        for p in &doc.plugins {
-            crate::plugin::load_plugin(p, &mut r)
-                .map_err(|why| GraphError::file(ErrorKind::Plugin, file, why).at_key("plugins"))?;
-        }
-        with_plugins = r;
-        &with_plugins
-    };
+    let registry = with_graph_plugins(&doc, registry)?;
     let errors: Vec<_> = overrides
         .iter()
         .filter_map(|s| doc.apply_set(s).err())
@@ -52,7 +41,24 @@ pub fn load_graph(
     if !errors.is_empty() {
         return Err(GraphErrors(errors));
     }
-    validate(&doc, registry)
+    validate(&doc, &registry)
+}
+
+/// `registry` with the plugins `doc`'s `[graph] plugins` names loaded (the
+/// same registry when it names none).
+pub fn with_graph_plugins<'a>(
+    doc: &GraphDoc,
+    registry: &'a Registry,
+) -> Result<std::borrow::Cow<'a, Registry>, GraphErrors> {
+    if doc.plugins.is_empty() {
+        return Ok(std::borrow::Cow::Borrowed(registry));
+    }
+    let mut r = registry.clone();
+    for p in &doc.plugins {
+        crate::plugin::load_plugin(p, &mut r)
+            .map_err(|why| GraphError::file(ErrorKind::Plugin, &doc.file, why).at_key("plugins"))?;
+    }
+    Ok(std::borrow::Cow::Owned(r))
 }
 
 /// Runs a validated graph and writes `report.json` into the output folder.

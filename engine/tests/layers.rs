@@ -29,6 +29,8 @@ const LAYERS: &[&[&str]] = &[
         "schedule",
         "session",
     ],
+    // Many runs of one graph.
+    &["sweep"],
 ];
 
 /// Root re-exports (`crate::OpSpec`) and the module they come from.

@@ -1,0 +1,185 @@
+//! Variant sweeps: one base graph, many variants (lists of values, op swaps,
+//! named override tables), every one validated before anything runs, all
+//! run against one cache so that what variants share is computed once, and
+//! compared in one table ([`compare`]).
+//!
+//! Sharding: `--shard I/N` runs the variants whose position (from 0) is
+//! `I - 1` modulo N. Shards may run at once on several machines against one
+//! cache on a shared filesystem: leases make each node key computed by one
+//! process only, and entries are written to a temporary file and renamed
+//! (see the README for what NFS and Lustre need). Each shard writes the
+//! plan (`sweep.json`) and its variants' reports; `merge` builds the
+//! comparison from the folder.
+
+pub mod compare;
+mod compare_html;
+pub mod plan;
+
+use crate::cache::{DiskCache, MemoryCache};
+use crate::error::GraphErrors;
+use crate::graph::GraphDoc;
+use crate::registry::Registry;
+use crate::report::NodeStatus;
+use crate::schedule::RunOptions;
+use crate::session::{RunError, run, with_graph_plugins};
+use crate::validate::{ValidGraph, validate};
+pub use plan::{Better, SweepPlan, Variant, load_sweep};
+use std::path::{Path, PathBuf};
+
+/// Every variant's graph, validated; errors name the variant, node and key.
+pub fn validate_variants(
+    plan: &SweepPlan,
+    registry: &Registry,
+) -> Result<Vec<ValidGraph>, GraphErrors> {
+    let mut registry = registry.clone();
+    for p in &plan.plugins {
+        crate::plugin::load_plugin(p, &mut registry).map_err(|why| {
+            crate::error::GraphError::file(crate::error::ErrorKind::Plugin, &plan.file, why)
+                .at_key("plugins")
+        })?;
+    }
+    let doc = GraphDoc::load(&plan.graph)?;
+    let registry = with_graph_plugins(&doc, &registry)?;
+    let mut graphs = Vec::new();
+    let mut errors = Vec::new();
+    for v in &plan.variants {
+        let by = format!("variant {}", v.name);
+        let mut d = doc.clone();
+        let mut failed = false;
+        for (k, value) in plan.common.iter().chain(&v.overrides) {
+            let (id, key) = k.split_once('.').expect("checked NODE.KEY");
+            if let Err(mut e) = d.set(id, key, value, &by) {
+                e.file = plan.file.clone();
+                errors.push(e);
+                failed = true;
+            }
+        }
+        if failed {
+            continue;
+        }
+        match validate(&d, &registry) {
+            Ok(g) => graphs.push(g),
+            Err(GraphErrors(es)) => errors.extend(es.into_iter().map(|mut e| {
+                e.message = format!("{by}: {}", e.message);
+                e
+            })),
+        }
+    }
+    if errors.is_empty() {
+        Ok(graphs)
+    } else {
+        Err(GraphErrors(errors))
+    }
+}
+
+/// How to run a sweep.
+#[derive(Debug, Clone)]
+pub struct SweepOptions {
+    /// The sweep's folder: `sweep.json`, one folder per variant, the comparison.
+    pub out_dir: PathBuf,
+    /// The shared disk cache (`None`: memory only, within this process).
+    pub cache: Option<PathBuf>,
+    /// Worker threads per variant's run (0 = one per core).
+    pub jobs: usize,
+    /// `(I, N)`: run the I-th of N slices (I from 1).
+    pub shard: Option<(usize, usize)>,
+}
+
+/// What one variant's run did.
+#[derive(Debug, Clone)]
+pub struct VariantRun {
+    /// The variant.
+    pub name: String,
+    /// Whether every node succeeded.
+    pub succeeded: bool,
+    /// Nodes computed by this run.
+    pub ran: usize,
+    /// Nodes reused from the cache (another variant's, or an earlier run's).
+    pub cached: usize,
+    /// Wall time, ms.
+    pub ms: f64,
+    /// Why the run could not finish (an I/O error), if it could not.
+    pub error: Option<String>,
+}
+
+/// The variants shard `shard` of `n` runs (all with `None`).
+pub fn shard_of(count: usize, shard: Option<(usize, usize)>) -> Vec<usize> {
+    match shard {
+        None => (0..count).collect(),
+        Some((i, n)) => (0..count).filter(|v| v % n == i - 1).collect(),
+    }
+}
+
+/// Runs the variants of this shard against one cache, each into
+/// `OUT/<variant>/`, after writing the plan to `OUT/sweep.json`. A failed
+/// variant is reported in its run; the others go on.
+pub fn run_sweep(
+    plan: &SweepPlan,
+    graphs: &[ValidGraph],
+    options: &SweepOptions,
+    mut each: impl FnMut(&VariantRun),
+) -> std::io::Result<Vec<VariantRun>> {
+    std::fs::create_dir_all(&options.out_dir)?;
+    crate::atomic::write_atomically(
+        &options.out_dir.join("sweep.json"),
+        (serde_json::to_string_pretty(&compare::plan_json(plan)).expect("plain data") + "\n")
+            .as_bytes(),
+    )?;
+    let memory = MemoryCache::new();
+    let mut runs = Vec::new();
+    for i in shard_of(plan.variants.len(), options.shard) {
+        let variant = &plan.variants[i];
+        let cache = match &options.cache {
+            Some(dir) => Some(DiskCache::open(dir)?),
+            None => None,
+        };
+        let run_options = RunOptions {
+            out_dir: options.out_dir.join(&variant.name),
+            cache,
+            jobs: options.jobs,
+            progress: false,
+        };
+        let start = std::time::Instant::now();
+        let outcome = run(&graphs[i], &run_options, &memory);
+        let ms = start.elapsed().as_secs_f64() * 1e3;
+        let result = match outcome {
+            Ok(o) => {
+                let count =
+                    |s: NodeStatus| o.report.nodes.iter().filter(|(_, n)| n.status == s).count();
+                VariantRun {
+                    name: variant.name.clone(),
+                    succeeded: o.report.succeeded(),
+                    ran: count(NodeStatus::Ran),
+                    cached: count(NodeStatus::Cached),
+                    ms,
+                    error: None,
+                }
+            }
+            Err(e) => VariantRun {
+                name: variant.name.clone(),
+                succeeded: false,
+                ran: 0,
+                cached: 0,
+                ms,
+                error: Some(match e {
+                    RunError::Graph(g) => g.to_string(),
+                    RunError::Io(io) => io.to_string(),
+                }),
+            },
+        };
+        each(&result);
+        runs.push(result);
+    }
+    Ok(runs)
+}
+
+/// The default cache of a sweep: `.fusegraph/cache` beside its base graph,
+/// as `fusegraph run` uses.
+pub fn default_cache(plan: &SweepPlan) -> PathBuf {
+    plan.graph
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."))
+        .join(".fusegraph")
+        .join("cache")
+}

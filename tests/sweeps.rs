@@ -182,3 +182,102 @@ fn a_bad_variant_is_refused_before_anything_runs() {
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert!(stderr(&o).contains("sweep.json"), "{}", stderr(&o));
 }
+
+#[test]
+fn the_shipped_sweeps_are_valid_in_every_variant() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("graphs/sweeps");
+    let registry = fusegraph_nodes::builtin_registry();
+    let mut checked = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let file = entry.unwrap().path();
+        if file.extension().is_none_or(|e| e != "toml") {
+            continue;
+        }
+        let plan = fusegraph_engine::sweep::load_sweep(&file).unwrap_or_else(|e| panic!("{e}"));
+        let graphs = fusegraph_engine::sweep::validate_variants(&plan, &registry)
+            .unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+        assert_eq!(graphs.len(), plan.variants.len());
+        assert!(plan.rank_by.is_some(), "{}: ranked", file.display());
+        checked += 1;
+    }
+    assert!(checked >= 3, "ICP, matchers, MRI surface");
+}
+
+/// The browser's command, if one is installed.
+fn chromium() -> Option<&'static str> {
+    ["chromium", "chromium-browser", "google-chrome"]
+        .into_iter()
+        .find(|c| {
+            Command::new(c)
+                .arg("--version")
+                .output()
+                .is_ok_and(|o| o.status.success())
+        })
+}
+
+#[test]
+fn the_comparison_page_sorts_in_a_real_browser() {
+    let Some(browser) = chromium() else {
+        eprintln!("skipped: no chromium installed (apt install chromium)");
+        return;
+    };
+    let t = tempfile::tempdir().unwrap();
+    setup(t.path());
+    let o = fusegraph(
+        &["sweep", "surface.toml", "--out", "s", "--no-cache"],
+        t.path(),
+    );
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let page = t.path().join("s/comparison.html");
+    let dom = |hash: &str| {
+        let profile = tempfile::tempdir().unwrap();
+        let o = Command::new(browser)
+            .args([
+                "--headless=new",
+                "--no-sandbox",
+                "--disable-gpu",
+                "--virtual-time-budget=5000",
+            ])
+            .args([
+                "--disable-background-networking",
+                "--disable-component-update",
+                "--disable-sync",
+                "--no-first-run",
+            ])
+            .arg(format!("--user-data-dir={}", profile.path().display()))
+            .arg("--dump-dom")
+            .arg(format!("file://{}{hash}", page.display()))
+            .output()
+            .expect("run the browser");
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    };
+    let order = |dom: &str| -> Vec<String> {
+        let body = &dom[dom.find("<tbody>").expect("a table body")..];
+        body.split("<tr class=")
+            .skip(1)
+            .map(|row| {
+                row.split("<td>")
+                    .nth(1)
+                    .unwrap_or("")
+                    .split('<')
+                    .next()
+                    .unwrap_or("")
+                    .to_string()
+            })
+            .collect()
+    };
+    let as_written = order(&dom(""));
+    assert_eq!(
+        as_written,
+        ["01_64_0", "02_64_5", "03_256_0", "04_256_5", "too_high"]
+    );
+    // Sorted by the skin distance, descending: unsmoothed first, the failed
+    // variant (no value) last.
+    let sorted = order(&dom("#sort=-eval_surface.mean_mm"));
+    assert_eq!(sorted.len(), 5, "{sorted:?}");
+    assert!(
+        sorted[0].ends_with("_0") && sorted[1].ends_with("_0"),
+        "{sorted:?}"
+    );
+    assert_eq!(sorted[4], "too_high", "{sorted:?}");
+}

@@ -217,6 +217,15 @@ fn number(v: Option<f64>) -> String {
     v.map(|x| format!("{x}")).unwrap_or_default()
 }
 
+/// A value for people: whole numbers without decimals, others to 4 places.
+pub fn shown(v: f64) -> String {
+    if v.fract() == 0.0 && v.abs() < 1e15 {
+        format!("{v:.0}")
+    } else {
+        format!("{v:.4}")
+    }
+}
+
 fn csv_field(s: &str) -> String {
     if s.contains([',', '"', '\n']) {
         format!("\"{}\"", s.replace('"', "\"\""))
@@ -301,7 +310,7 @@ fn best_line(c: &Comparison) -> String {
                 "Best by `{m}` ({} is better): **{}** ({})",
                 b.name(),
                 row.variant,
-                number(row.metrics[col])
+                row.metrics[col].map(shown).unwrap_or_default()
             )
         }
         (Some((m, _)), None) => format!("No variant finished with `{m}`."),
@@ -330,7 +339,7 @@ pub fn to_markdown(c: &Comparison) -> String {
         cells.extend(
             r.metrics
                 .iter()
-                .map(|m| m.map(|v| format!("{v:.4}")).unwrap_or_else(|| "-".into())),
+                .map(|m| m.map(shown).unwrap_or_else(|| "-".into())),
         );
         cells.push(
             r.total_ms
@@ -483,11 +492,11 @@ mod tests {
         );
         let md = to_markdown(&comparison(Better::Lower));
         assert!(
-            md.contains("Best by `e.tre_mm` (lower is better): **cauchy** (0.2)"),
+            md.contains("Best by `e.tre_mm` (lower is better): **cauchy** (0.2000)"),
             "{md}"
         );
         assert!(
-            md.contains("| none | icp.kernel=none | done | - | 1.0000 |"),
+            md.contains("| none | icp.kernel=none | done | - | 1 |"),
             "{md}"
         );
         assert!(

@@ -4,7 +4,7 @@
 //! in the order the sweep lists them, one dot per variant). One
 //! self-contained file: no server, no network.
 
-use super::compare::{Comparison, Status};
+use super::compare::{Comparison, Status, shown};
 use std::fmt::Write;
 
 fn esc(s: &str) -> String {
@@ -61,7 +61,7 @@ fn plot(c: &Comparison, col: usize, key: &str) -> Option<String> {
             "<text class=\"{anchor}\" x=\"{}\" y=\"{}\" text-anchor=\"end\" font-size=\"11\">{}</text>",
             left - 4.0,
             y(v) + 4.0,
-            esc(&format!("{v:.4}"))
+            esc(&shown(v))
         );
     }
     for (i, cat) in categories.iter().enumerate() {
@@ -101,7 +101,7 @@ pub fn to_html(c: &Comparison, best: &str) -> String {
          tr.failed td,tr.missing td{{color:#a00}}tr.best td{{background:#eef8ee}}figure{{display:inline-block;margin:1em}}\
          </style></head><body><h1>Sweep <code>{0}</code></h1><p id=\"best\">{1}</p>",
         esc(&c.name),
-        esc(best).replace("**", "")
+        esc(best)
     );
     let best_variant = c.best().map(|r| r.variant.clone());
     s.push_str(
@@ -140,7 +140,7 @@ pub fn to_html(c: &Comparison, best: &str) -> String {
                 s,
                 "<td data-v=\"{}\">{}</td>",
                 m.map(|v| v.to_string()).unwrap_or_default(),
-                m.map(|v| format!("{v:.4}")).unwrap_or_else(|| "-".into())
+                m.map(shown).unwrap_or_else(|| "-".into())
             );
         }
         let num = |v: Option<f64>| v.map(|x| format!("{x:.0}")).unwrap_or_else(|| "-".into());
@@ -164,13 +164,17 @@ pub fn to_html(c: &Comparison, best: &str) -> String {
         s.push_str(&plots.concat());
     }
     // Sorting: numbers by data-v (empty last), text otherwise; a second click
-    // reverses.
+    // reverses. `comparison.html#sort=COLUMN` (or `#sort=-COLUMN`, descending)
+    // opens the page sorted, so a sorted view can be linked.
     s.push_str(
-        "<script>document.querySelectorAll('#comparison th').forEach((th,i)=>{th.addEventListener('click',()=>{\
-         const body=th.closest('table').tBodies[0];const rows=[...body.rows];const dir=th.dataset.dir==='1'?-1:1;th.dataset.dir=dir===1?'1':'-1';\
+        "<script>const heads=[...document.querySelectorAll('#comparison th')];\
+         function sortBy(i,dir){const body=document.querySelector('#comparison').tBodies[0];const rows=[...body.rows];\
          const key=r=>{const c=r.cells[i];const v=c.dataset.v;if(v!==undefined){const x=parseFloat(v);return isNaN(x)?null:x;}return c.textContent;};\
-         rows.sort((a,b)=>{const x=key(a),y=key(b);if(x===null)return 1;if(y===null)return -1;return (x<y?-1:x>y?1:0)*dir;});\
-         rows.forEach(r=>body.appendChild(r));});});</script></body></html>\n",
+         rows.sort((a,b)=>{const x=key(a),y=key(b);if(x===null&&y===null)return 0;if(x===null)return 1;if(y===null)return -1;return (x<y?-1:x>y?1:0)*dir;});\
+         rows.forEach(r=>body.appendChild(r));heads[i].dataset.dir=dir===1?'1':'-1';}\
+         heads.forEach((th,i)=>th.addEventListener('click',()=>sortBy(i,th.dataset.dir==='1'?-1:1)));\
+         const m=decodeURIComponent(location.hash).match(/^#sort=(-?)(.+)$/);\
+         if(m){const i=heads.findIndex(h=>h.textContent===m[2]);if(i>=0)sortBy(i,m[1]?-1:1);}</script></body></html>\n",
     );
     s
 }

@@ -126,10 +126,18 @@ pub fn run_sweep(
             .as_bytes(),
     )?;
     let memory = MemoryCache::new();
+    // Without a disk cache the variants still share files that nodes made (a
+    // generated phantom): they live in a cache of this sweep's own, removed
+    // at the end, not in one variant's `.work` folder.
+    let private = match &options.cache {
+        Some(_) => None,
+        None => Some(tempfile_dir(&options.out_dir)?),
+    };
+    let cache_dir = options.cache.as_deref().or(private.as_deref());
     let mut runs = Vec::new();
     for i in shard_of(plan.variants.len(), options.shard) {
         let variant = &plan.variants[i];
-        let cache = match &options.cache {
+        let cache = match cache_dir {
             Some(dir) => Some(DiskCache::open(dir)?),
             None => None,
         };
@@ -170,7 +178,20 @@ pub fn run_sweep(
         each(&result);
         runs.push(result);
     }
+    if let Some(dir) = private {
+        let _ = std::fs::remove_dir_all(dir);
+    }
     Ok(runs)
+}
+
+/// A fresh folder `OUT/.sweep-cache-<pid>` for a sweep run without a disk cache.
+fn tempfile_dir(out: &Path) -> std::io::Result<PathBuf> {
+    let dir = out.join(format!(".sweep-cache-{}", std::process::id()));
+    if dir.exists() {
+        std::fs::remove_dir_all(&dir)?;
+    }
+    std::fs::create_dir_all(&dir)?;
+    Ok(dir)
 }
 
 /// The default cache of a sweep: `.fusegraph/cache` beside its base graph,

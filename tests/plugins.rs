@@ -301,3 +301,28 @@ fn misbehaving_ops_fail_clearly_and_the_other_branches_finish() {
         assert!(error.contains(says), "{id}: {error}");
     }
 }
+
+#[test]
+fn a_sweep_loads_its_plugins_once_for_every_variant() {
+    let t = tempfile::tempdir().unwrap();
+    let lib = plugin("test_plugin_misbehaving");
+    std::fs::write(
+        t.path().join("g.toml"),
+        "[node.c]\nop = \"math.constant\"\nvalue = 1.0\n[node.d]\nop = \"bad.good\"\nin.x = \"c.value\"\n",
+    )
+    .unwrap();
+    std::fs::write(
+        t.path().join("s.toml"),
+        format!(
+            "[sweep]\ngraph = \"g.toml\"\nrank_by = \"d.ok_count\"\nplugins = [{:?}]\n[sweep.vary]\n\"c.value\" = [1.0, 2.0, 3.0]\n",
+            lib.display().to_string()
+        ),
+    )
+    .unwrap();
+    let o = fusegraph(&["sweep", "s.toml", "--out", "sw", "--no-cache"], t.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let csv = std::fs::read_to_string(t.path().join("sw/comparison.csv")).unwrap();
+    let rows: Vec<&str> = csv.lines().skip(1).collect();
+    assert_eq!(rows.len(), 3, "{csv}");
+    assert!(rows.iter().all(|r| r.contains(",done,8,")), "{csv}");
+}

@@ -47,18 +47,8 @@ enum Command {
         graph: PathBuf,
         #[command(flatten)]
         edit: Edit,
-        /// Output folder [default: out/<graph name>].
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Cache folder [default: .fusegraph/cache beside the graph].
-        #[arg(long, conflicts_with = "no_cache")]
-        cache: Option<PathBuf>,
-        /// Do not read or write the disk cache.
-        #[arg(long)]
-        no_cache: bool,
-        /// Worker threads [default: one per core].
-        #[arg(long, short = 'j', default_value_t = 0)]
-        jobs: usize,
+        #[command(flatten)]
+        running: Running,
     },
     /// Run every variant of a sweep against one cache and compare them:
     /// DIR/<variant>/report.json, DIR/comparison.{csv,md,html}.
@@ -66,18 +56,8 @@ enum Command {
         /// The sweep file (not needed with --merge).
         #[arg(required_unless_present = "merge")]
         sweep: Option<PathBuf>,
-        /// Output folder [default: out/<sweep name>].
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Cache folder shared by every variant [default: .fusegraph/cache beside the base graph].
-        #[arg(long, conflicts_with = "no_cache")]
-        cache: Option<PathBuf>,
-        /// No disk cache: variants share results in memory only.
-        #[arg(long)]
-        no_cache: bool,
-        /// Worker threads per variant's run [default: one per core].
-        #[arg(long, short = 'j', default_value_t = 0)]
-        jobs: usize,
+        #[command(flatten)]
+        running: Running,
         /// Run only the I-th of N slices of the variants (I from 1, as
         /// `#SBATCH --array=1-N` numbers them); merge the folder afterwards.
         #[arg(long, value_name = "I/N", value_parser = parse_shard)]
@@ -123,6 +103,24 @@ enum Command {
         #[command(subcommand)]
         what: bench::BenchCommand,
     },
+}
+
+/// Where a run writes and what it reuses (`run` and `sweep`).
+#[derive(clap::Args)]
+struct Running {
+    /// Output folder [default: out/<graph or sweep name>].
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Cache folder [default: .fusegraph/cache beside the (base) graph].
+    #[arg(long, conflicts_with = "no_cache")]
+    cache: Option<PathBuf>,
+    /// Do not read or write the disk cache (a sweep's variants still share
+    /// their results, in a cache of its own removed at the end).
+    #[arg(long)]
+    no_cache: bool,
+    /// Worker threads of a run [default: one per core].
+    #[arg(long, short = 'j', default_value_t = 0)]
+    jobs: usize,
 }
 
 #[derive(clap::Args)]
@@ -185,10 +183,13 @@ fn execute(cli: Cli, registry: &Registry) -> anyhow::Result<ExitCode> {
         Command::Run {
             graph,
             edit,
-            out,
-            cache,
-            no_cache,
-            jobs,
+            running:
+                Running {
+                    out,
+                    cache,
+                    no_cache,
+                    jobs,
+                },
         } => {
             let valid = load_graph(&graph, &edit.sets, registry)?;
             let out_dir = out.unwrap_or_else(|| Path::new("out").join(folder_name(&valid.name)));
@@ -224,10 +225,13 @@ fn execute(cli: Cli, registry: &Registry) -> anyhow::Result<ExitCode> {
         }
         Command::Sweep {
             sweep,
-            out,
-            cache,
-            no_cache,
-            jobs,
+            running:
+                Running {
+                    out,
+                    cache,
+                    no_cache,
+                    jobs,
+                },
             shard,
             merge,
         } => {

@@ -3,24 +3,15 @@
 //! there, and a screenshot is not blank. Skipped, with a message, where no
 //! chromium is installed (`.ci/run` installs it where the machine lets it).
 
+mod common;
+
+use common::chromium;
 use fusegraph_engine::figure::{Figure, FigureData};
 use fusegraph_engine::report::{NodeReport, NodeStatus, RunReport};
 use fusegraph_engine::report_html::Reference;
 use fusegraph_engine::session::write_report;
 use std::path::Path;
 use std::process::Command;
-
-/// The browser's command, if one is installed.
-fn chromium() -> Option<&'static str> {
-    ["chromium", "chromium-browser", "google-chrome"]
-        .into_iter()
-        .find(|c| {
-            Command::new(c)
-                .arg("--version")
-                .output()
-                .is_ok_and(|o| o.status.success())
-        })
-}
 
 fn browse(browser: &str, page: &Path, extra: &[&str]) -> std::process::Output {
     let profile = tempfile::tempdir().unwrap();

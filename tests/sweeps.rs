@@ -7,7 +7,7 @@
 
 mod common;
 
-use common::{fusegraph, stderr};
+use common::{chromium, fusegraph, stderr};
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::Command;
@@ -201,18 +201,6 @@ fn the_shipped_sweeps_are_valid_in_every_variant() {
         checked += 1;
     }
     assert!(checked >= 3, "ICP, matchers, MRI surface");
-}
-
-/// The browser's command, if one is installed.
-fn chromium() -> Option<&'static str> {
-    ["chromium", "chromium-browser", "google-chrome"]
-        .into_iter()
-        .find(|c| {
-            Command::new(c)
-                .arg("--version")
-                .output()
-                .is_ok_and(|o| o.status.success())
-        })
 }
 
 #[test]

@@ -14,6 +14,7 @@ pub fn fusegraph(args: &[&str], cwd: &Path) -> Output {
 }
 
 /// What a run printed on stderr.
+#[allow(dead_code)] // not every test binary uses it
 pub fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
@@ -75,4 +76,18 @@ pub fn limited(args: &[&str], cwd: &Path, memory_bytes: u64, time: std::time::Du
         stdout: out.join().expect("stdout read"),
         stderr: err.join().expect("stderr read"),
     }
+}
+
+/// The browser's command, if one is installed (Debian's chromium; tests that
+/// need it skip with a message otherwise).
+#[allow(dead_code)] // not every test binary uses it
+pub fn chromium() -> Option<&'static str> {
+    ["chromium", "chromium-browser", "google-chrome"]
+        .into_iter()
+        .find(|c| {
+            Command::new(c)
+                .arg("--version")
+                .output()
+                .is_ok_and(|o| o.status.success())
+        })
 }

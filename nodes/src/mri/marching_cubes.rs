@@ -167,10 +167,6 @@ fn triangulate_case(case: u8) -> Case {
     out
 }
 
-/// One slab's output: (edge or centre id, position in voxel indices) of every
-/// vertex it used, and its triangles as vertex ids.
-type Slab = (Vec<(u64, [f64; 3])>, Vec<[u64; 3]>);
-
 /// A triangle mesh in patient mm.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TriangleMesh {
@@ -181,143 +177,398 @@ pub struct TriangleMesh {
     pub triangles: Vec<[u32; 3]>,
 }
 
-/// The isosurface `value = level` of a volume (`values` on `grid`), enclosing
-/// the voxels above `level`, in patient mm.
-pub fn marching_cubes(values: &[f32], grid: &Grid, level: f32) -> TriangleMesh {
-    let [nx, ny, nz] = grid.dims;
-    let table = table();
-    // Padded lattice: indices -1..=n, outside the grid counts as outside.
-    let value = |i: isize, j: isize, k: isize| -> f32 {
-        if i < 0 || j < 0 || k < 0 || i >= nx as isize || j >= ny as isize || k >= nz as isize {
-            f32::NEG_INFINITY
-        } else {
-            values[i as usize + nx * (j as usize + ny * k as usize)]
+/// Corner bits of a cube from its left (x = 0) face's column code.
+///
+/// A column code holds the inside bits of one lattice column's four points
+/// at (y, z) = (0, 0), (1, 0), (0, 1), (1, 1) as bits 0..4; the cube's corners
+/// on that face are 0, 3, 4, 7 (see [`CORNERS`]).
+const LEFT: [u8; 16] = column_to_corners([0, 3, 4, 7]);
+/// Corner bits from the right (x = 1) face's column code: corners 1, 2, 5, 6.
+const RIGHT: [u8; 16] = column_to_corners([1, 2, 5, 6]);
+
+const fn column_to_corners(corners: [usize; 4]) -> [u8; 16] {
+    let mut out = [0u8; 16];
+    let mut code = 0;
+    while code < 16 {
+        let mut bit = 0;
+        while bit < 4 {
+            if code & (1 << bit) != 0 {
+                out[code] |= 1 << corners[bit];
+            }
+            bit += 1;
         }
-    };
-    let (px, py) = (nx as u64 + 2, ny as u64 + 2);
-    // Ids of cycle-centre vertices come after every lattice edge id.
-    let centre_base = 3 * px * py * (nz as u64 + 2);
-    let edge_id = |i: isize, j: isize, k: isize, axis: u64| {
-        let lattice = (i + 1) as u64 + px * ((j + 1) as u64 + py * (k + 1) as u64);
-        lattice * 3 + axis
-    };
-    let slabs: Vec<Slab> = (-1..nz as isize)
-        .into_par_iter()
-        .map(|k| {
-            let mut verts = Vec::new();
-            let mut tris = Vec::new();
-            for j in -1..ny as isize {
-                for i in -1..nx as isize {
-                    let interior = i >= 0
-                        && j >= 0
-                        && k >= 0
-                        && i + 1 < nx as isize
-                        && j + 1 < ny as isize
-                        && k + 1 < nz as isize;
-                    let v: [f32; 8] = if interior {
-                        // Most cubes: direct reads, no padding checks.
-                        let base = i as usize + nx * (j as usize + ny * k as usize);
-                        let (dy, dz) = (nx, nx * ny);
-                        [
-                            values[base],
-                            values[base + 1],
-                            values[base + 1 + dy],
-                            values[base + dy],
-                            values[base + dz],
-                            values[base + 1 + dz],
-                            values[base + 1 + dy + dz],
-                            values[base + dy + dz],
-                        ]
-                    } else {
-                        std::array::from_fn(|c| {
-                            let o = CORNERS[c];
-                            value(i + o[0] as isize, j + o[1] as isize, k + o[2] as isize)
-                        })
-                    };
-                    let case = (0..8).fold(0u8, |acc, c| acc | (((v[c] > level) as u8) << c));
-                    if case == 0 || case == 255 {
-                        continue;
+        code += 1;
+    }
+    out
+}
+
+/// The padded lattice of a volume: point `(p, q, r)`, with `p < px`,
+/// `q < py`, `r < pz`, is voxel `(p - 1, q - 1, r - 1)`, and the border is
+/// outside. Inside bits are kept for every point, and per row of points the
+/// span `[first, end)` of its inside points (`first == end` when none), so
+/// that passes over the lattice skip what lies outside the surface's reach
+/// (Flying Edges' trimming, Schroeder et al. 2015).
+struct Lattice<'a> {
+    values: &'a [f32],
+    dims: [usize; 3],
+    px: usize,
+    py: usize,
+    pz: usize,
+    level: f32,
+    inside: Vec<u8>,
+    spans: Vec<(u32, u32)>,
+}
+
+impl<'a> Lattice<'a> {
+    fn new(values: &'a [f32], dims: [usize; 3], level: f32) -> Self {
+        let [nx, ny, nz] = dims;
+        let (px, py, pz) = (nx + 2, ny + 2, nz + 2);
+        let mut inside = vec![0u8; px * py * pz];
+        let mut spans = vec![(0u32, 0u32); py * pz];
+        inside
+            .par_chunks_mut(px * py)
+            .zip(spans.par_chunks_mut(py))
+            .enumerate()
+            .for_each(|(r, (layer, spans))| {
+                if r == 0 || r > nz {
+                    return;
+                }
+                for q in 1..=ny {
+                    let src = &values[nx * (q - 1 + ny * (r - 1))..][..nx];
+                    let row = &mut layer[q * px + 1..][..nx];
+                    for (b, &v) in row.iter_mut().zip(src) {
+                        *b = (v > level) as u8;
                     }
-                    let entry = &table[case as usize];
-                    let edge_point = |e: usize| {
-                        let [a, b] = EDGES[e];
-                        let (oa, ob) = (CORNERS[a], CORNERS[b]);
-                        let (va, vb) = (v[a], v[b]);
-                        let t = if va == f32::NEG_INFINITY {
-                            1.0
-                        } else if vb == f32::NEG_INFINITY {
-                            0.0
-                        } else {
-                            (((level - va) / (vb - va)) as f64)
-                                .clamp(CORNER_CLEARANCE, 1.0 - CORNER_CLEARANCE)
-                        };
-                        let p: [f64; 3] = std::array::from_fn(|x| {
-                            let (ca, cb) = (oa[x] as f64, ob[x] as f64);
-                            [i, j, k][x] as f64 + ca + t * (cb - ca)
-                        });
-                        p
-                    };
-                    for tri in &entry.triangles {
-                        let ids = tri.map(|e| {
-                            if e >= 12 {
-                                // A cycle centre: its own vertex, owned by this cube.
-                                let c = (e - 12) as usize;
-                                let cube =
-                                    (i + 1) as u64 + px * ((j + 1) as u64 + py * (k + 1) as u64);
-                                let id = centre_base + cube * 4 + c as u64;
-                                let edges = &entry.centres[c];
-                                let mut p = [0.0; 3];
-                                for &ce in edges {
-                                    let q = edge_point(ce as usize);
-                                    (0..3).for_each(|x| p[x] += q[x] / edges.len() as f64);
-                                }
-                                verts.push((id, p));
-                                return id;
-                            }
-                            let [a, b] = EDGES[e as usize];
-                            let (oa, ob) = (CORNERS[a], CORNERS[b]);
-                            let axis = (0..3)
-                                .find(|&x| oa[x] != ob[x])
-                                .expect("edge along an axis");
-                            let low = if oa[axis] < ob[axis] { oa } else { ob };
-                            let id = edge_id(
-                                i + low[0] as isize,
-                                j + low[1] as isize,
-                                k + low[2] as isize,
-                                axis as u64,
-                            );
-                            verts.push((id, edge_point(e as usize)));
-                            id
-                        });
-                        tris.push(ids);
+                    if let Some(first) = row.iter().position(|&b| b != 0) {
+                        let last = row.iter().rposition(|&b| b != 0).expect("one exists");
+                        spans[q] = (first as u32 + 1, last as u32 + 2);
                     }
                 }
+            });
+        Lattice {
+            values,
+            dims,
+            px,
+            py,
+            pz,
+            level,
+            inside,
+            spans,
+        }
+    }
+
+    /// The value at lattice point `(p, q, r)` (`-inf` on the border).
+    fn value(&self, p: usize, q: usize, r: usize) -> f32 {
+        let [nx, ny, nz] = self.dims;
+        if p == 0 || q == 0 || r == 0 || p > nx || q > ny || r > nz {
+            f32::NEG_INFINITY
+        } else {
+            self.values[p - 1 + nx * (q - 1 + ny * (r - 1))]
+        }
+    }
+
+    /// Inside bits of row `q` of layer `r`.
+    fn row(&self, q: usize, r: usize) -> &[u8] {
+        &self.inside[(r * self.py + q) * self.px..][..self.px]
+    }
+
+    fn span(&self, q: usize, r: usize) -> (usize, usize) {
+        let (a, b) = self.spans[r * self.py + q];
+        (a as usize, b as usize)
+    }
+
+    /// The union of the spans of rows `rows`, widened by one point on the
+    /// left (a crossing or crossed cube reaches one point beyond an inside
+    /// one), as a range of `p`; empty when every row is outside.
+    fn reach(&self, rows: &[(usize, usize)]) -> std::ops::Range<usize> {
+        let mut lo = usize::MAX;
+        let mut hi = 0;
+        for &(q, r) in rows {
+            let (a, b) = self.span(q, r);
+            if a < b {
+                lo = lo.min(a);
+                hi = hi.max(b);
             }
-            (verts, tris)
+        }
+        if lo >= hi { 0..0 } else { lo - 1..hi }
+    }
+
+    /// The voxel-index position of the vertex on the edge from `(p, q, r)`
+    /// along `axis`.
+    fn point(&self, at: [usize; 3], axis: usize) -> [f64; 3] {
+        let [p, q, r] = at;
+        let mut end = at;
+        end[axis] += 1;
+        let (va, vb) = (self.value(p, q, r), self.value(end[0], end[1], end[2]));
+        let t = if va == f32::NEG_INFINITY {
+            1.0
+        } else if vb == f32::NEG_INFINITY {
+            0.0
+        } else {
+            ((self.level - va) / (vb - va)) as f64
+        }
+        .clamp(CORNER_CLEARANCE, 1.0 - CORNER_CLEARANCE);
+        let mut out = [p as f64 - 1.0, q as f64 - 1.0, r as f64 - 1.0];
+        out[axis] += t;
+        out
+    }
+
+    /// Numbers the crossed X and Y edges of layer `r` from `next`: X edges row
+    /// by row, then Y edges, in `maps.x` and `maps.y`. `emit` gets each
+    /// vertex's position.
+    fn number_xy(
+        &self,
+        r: usize,
+        maps: &mut EdgeMaps,
+        next: &mut u32,
+        mut emit: impl FnMut([f64; 3]),
+    ) {
+        let px = self.px;
+        for q in 0..self.py {
+            let row = self.row(q, r);
+            for p in self.reach(&[(q, r)]) {
+                if row[p] != row[p + 1] {
+                    maps.x[q * px + p] = *next;
+                    *next += 1;
+                    emit(self.point([p, q, r], 0));
+                }
+            }
+        }
+        for q in 0..self.py - 1 {
+            let (row, up) = (self.row(q, r), self.row(q + 1, r));
+            for p in self.reach(&[(q, r), (q + 1, r)]) {
+                if row[p] != up[p] {
+                    maps.y[q * px + p] = *next;
+                    *next += 1;
+                    emit(self.point([p, q, r], 1));
+                }
+            }
+        }
+    }
+
+    /// Numbers the crossed Z edges from layer `r` to `r + 1` from `next`.
+    fn number_z(
+        &self,
+        r: usize,
+        maps: &mut EdgeMaps,
+        next: &mut u32,
+        mut emit: impl FnMut([f64; 3]),
+    ) {
+        for q in 0..self.py {
+            let (row, above) = (self.row(q, r), self.row(q, r + 1));
+            for p in self.reach(&[(q, r), (q, r + 1)]) {
+                if row[p] != above[p] {
+                    maps.z[q * self.px + p] = *next;
+                    *next += 1;
+                    emit(self.point([p, q, r], 2));
+                }
+            }
+        }
+    }
+
+    /// Calls `cube(p, q, case)` for every cube of layer `r` the surface
+    /// crosses, in order.
+    fn crossed_cubes(
+        &self,
+        r: usize,
+        column: &mut Vec<u8>,
+        mut cube: impl FnMut(usize, usize, u8),
+    ) {
+        column.resize(self.px, 0);
+        for q in 0..self.py - 1 {
+            let reach = self.reach(&[(q, r), (q + 1, r), (q, r + 1), (q + 1, r + 1)]);
+            if reach.is_empty() {
+                continue;
+            }
+            let rows = [
+                self.row(q, r),
+                self.row(q + 1, r),
+                self.row(q, r + 1),
+                self.row(q + 1, r + 1),
+            ];
+            for p in reach.start..=reach.end {
+                column[p] = rows[0][p] | (rows[1][p] << 1) | (rows[2][p] << 2) | (rows[3][p] << 3);
+            }
+            for p in reach {
+                let case = LEFT[column[p] as usize] | RIGHT[column[p + 1] as usize];
+                if case != 0 && case != 255 {
+                    cube(p, q, case);
+                }
+            }
+        }
+    }
+}
+
+/// Where each crossed edge's vertex is, by the lattice point that owns it:
+/// index maps for the X and Y edges of one layer and the Z edges from it.
+/// Entries of uncrossed edges are stale and never read.
+struct EdgeMaps {
+    x: Vec<u32>,
+    y: Vec<u32>,
+    z: Vec<u32>,
+}
+
+impl EdgeMaps {
+    fn new(n: usize) -> Self {
+        EdgeMaps {
+            x: vec![0; n],
+            y: vec![0; n],
+            z: vec![0; n],
+        }
+    }
+}
+
+/// Tags on a chunk's vertex references, resolved when the chunks are joined:
+/// the next chunk's edge vertex, or one of this chunk's cycle centres (no
+/// tag: one of this chunk's edge vertices).
+const NEXT_CHUNK: u32 = 1 << 30;
+const CENTRE: u32 = 2 << 30;
+const INDEX: u32 = NEXT_CHUNK - 1;
+
+/// One chunk of cube layers' part of the mesh, with chunk-local references.
+#[derive(Default)]
+struct Part {
+    edges: Vec<[f32; 3]>,
+    centres: Vec<[f32; 3]>,
+    triangles: Vec<[u32; 3]>,
+}
+
+/// For each cube edge: the offsets of its lower corner and its axis.
+const EDGE_ORIGINS: [([usize; 3], usize); 12] = {
+    let mut out = [([0, 0, 0], 0); 12];
+    let mut e = 0;
+    while e < 12 {
+        let (a, b) = (CORNERS[EDGES[e][0]], CORNERS[EDGES[e][1]]);
+        let axis = if a[0] != b[0] {
+            0
+        } else if a[1] != b[1] {
+            1
+        } else {
+            2
+        };
+        out[e] = (if a[axis] < b[axis] { a } else { b }, axis);
+        e += 1;
+    }
+    out
+};
+
+/// The isosurface `value = level` of a volume (`values` on `grid`), enclosing
+/// the voxels above `level`, in patient mm.
+///
+/// The lattice's inside bits and row spans are found first. Then chunks of
+/// cube layers are contoured in parallel, each into its own part with
+/// chunk-local vertex numbers: edge vertices numbered layer by layer (X, Y,
+/// then Z edges), and the X and Y edges of its top layer, which belong to
+/// the next chunk, numbered as that chunk numbers them. Joining the parts
+/// offsets the numbers; centres come after every edge vertex and triangles
+/// cube by cube, so the mesh is the same for any number of chunks and
+/// threads.
+pub fn marching_cubes(values: &[f32], grid: &Grid, level: f32) -> TriangleMesh {
+    let lat = Lattice::new(values, grid.dims, level);
+    let table = table();
+    let cube_layers = lat.pz - 1;
+    let chunks = (rayon::current_num_threads() * 4).clamp(1, cube_layers);
+    let plane = lat.px * lat.py;
+    let to_patient = |p: [f64; 3]| grid.to_patient(p).map(|x| x as f32);
+    let parts: Vec<Part> = (0..chunks)
+        .into_par_iter()
+        .map(|c| {
+            let (r0, r1) = (c * cube_layers / chunks, (c + 1) * cube_layers / chunks);
+            let mut part = Part::default();
+            // Maps of the layer the cubes sit on and of the one above.
+            let (mut low, mut high) = (EdgeMaps::new(plane), EdgeMaps::new(plane));
+            let mut column = Vec::new();
+            let mut next = 0u32;
+            let edges = &mut part.edges;
+            let mut emit = |v: [f64; 3]| edges.push(to_patient(v));
+            lat.number_xy(r0, &mut low, &mut next, &mut emit);
+            for r in r0..r1 {
+                lat.number_z(r, &mut low, &mut next, &mut emit);
+                // The X and Y edges of layer r + 1: this chunk's own, or the
+                // next chunk's first, numbered as it numbers them.
+                if r + 1 < r1 {
+                    lat.number_xy(r + 1, &mut high, &mut next, &mut emit);
+                } else {
+                    let mut theirs = NEXT_CHUNK;
+                    lat.number_xy(r + 1, &mut high, &mut theirs, |_| {});
+                }
+                lat.crossed_cubes(r, &mut column, |p, q, case| {
+                    let entry = &table[case as usize];
+                    let first_centre = CENTRE | part.centres.len() as u32;
+                    for cycle in &entry.centres {
+                        let mut sum = [0.0f64; 3];
+                        for &e in cycle {
+                            let (o, axis) = EDGE_ORIGINS[e as usize];
+                            let v = lat.point([p + o[0], q + o[1], r + o[2]], axis);
+                            (0..3).for_each(|x| sum[x] += v[x] / cycle.len() as f64);
+                        }
+                        part.centres.push(to_patient(sum));
+                    }
+                    for tri in &entry.triangles {
+                        part.triangles.push(tri.map(|e| {
+                            if e >= 12 {
+                                return first_centre + (e - 12) as u32;
+                            }
+                            let (o, axis) = EDGE_ORIGINS[e as usize];
+                            let at = (q + o[1]) * lat.px + p + o[0];
+                            let maps = if o[2] == 0 { &low } else { &high };
+                            match axis {
+                                0 => maps.x[at],
+                                1 => maps.y[at],
+                                _ => low.z[at],
+                            }
+                        }));
+                    }
+                });
+                std::mem::swap(&mut low, &mut high);
+            }
+            part
         })
         .collect();
-    let mut verts: Vec<(u64, [f64; 3])> = slabs.iter().flat_map(|s| s.0.iter().copied()).collect();
-    verts.par_sort_unstable_by_key(|v| v.0);
-    verts.dedup_by_key(|v| v.0);
+    // Join: each chunk's numbers offset by the vertices before it.
+    let total_edges: usize = parts.iter().map(|p| p.edges.len()).sum();
+    assert!(
+        total_edges + parts.iter().map(|p| p.centres.len()).sum::<usize>() < INDEX as usize,
+        "more than 2^30 vertices"
+    );
+    let (mut edge_base, mut centre_base, mut tri_base) =
+        (vec![0u32], vec![total_edges as u32], vec![0usize]);
+    for p in &parts {
+        edge_base.push(edge_base.last().expect("one") + p.edges.len() as u32);
+        centre_base.push(centre_base.last().expect("one") + p.centres.len() as u32);
+        tri_base.push(tri_base.last().expect("one") + p.triangles.len());
+    }
+    let mut vertices = Vec::with_capacity(*centre_base.last().expect("one") as usize);
+    for p in &parts {
+        vertices.extend_from_slice(&p.edges);
+    }
+    for p in &parts {
+        vertices.extend_from_slice(&p.centres);
+    }
     let flip = determinant(grid) < 0.0;
-    let vertices: Vec<[f32; 3]> = verts
+    let mut triangles = vec![[0u32; 3]; *tri_base.last().expect("one")];
+    let mut slices = Vec::with_capacity(chunks);
+    let mut rest = triangles.as_mut_slice();
+    for p in &parts {
+        let (mine, tail) = std::mem::take(&mut rest).split_at_mut(p.triangles.len());
+        slices.push(mine);
+        rest = tail;
+    }
+    parts
         .par_iter()
-        .map(|(_, p)| grid.to_patient(*p).map(|x| x as f32))
-        .collect();
-    let index_of = |id: u64| {
-        verts
-            .binary_search_by_key(&id, |v| v.0)
-            .expect("vertex recorded") as u32
-    };
-    let triangles: Vec<[u32; 3]> = slabs
-        .par_iter()
-        .flat_map_iter(|s| s.1.iter())
-        .map(|t| {
-            let [a, b, c] = t.map(index_of);
-            // A left-handed voxel -> patient map mirrors the mesh: undo it.
-            if flip { [a, c, b] } else { [a, b, c] }
-        })
-        .collect();
+        .zip(slices)
+        .enumerate()
+        .for_each(|(c, (part, out))| {
+            let resolve = |v: u32| match v & !INDEX {
+                0 => edge_base[c] + v,
+                NEXT_CHUNK => edge_base[c + 1] + (v & INDEX),
+                _ => centre_base[c] + (v & INDEX),
+            };
+            for (o, t) in out.iter_mut().zip(&part.triangles) {
+                let [a, b, d] = t.map(resolve);
+                *o = if flip { [a, d, b] } else { [a, b, d] };
+            }
+        });
     TriangleMesh {
         vertices,
         triangles,
@@ -332,32 +583,37 @@ fn determinant(grid: &Grid) -> f64 {
 }
 
 impl TriangleMesh {
+    /// The sum of `f` over the triangles, in parallel over fixed blocks added
+    /// in order: the same bits on any number of threads.
+    fn sum_over_triangles(&self, f: impl Fn(&[u32; 3]) -> f64 + Sync) -> f64 {
+        const BLOCK: usize = 8192;
+        let blocks: Vec<f64> = self
+            .triangles
+            .par_chunks(BLOCK)
+            .map(|b| b.iter().map(&f).sum::<f64>())
+            .collect();
+        blocks.iter().sum()
+    }
+
     /// Enclosed volume (mm3, positive for outward-facing triangles).
     pub fn volume(&self) -> f64 {
-        self.triangles
-            .iter()
-            .map(|t| {
-                let [a, b, c] = t.map(|i| self.vertices[i as usize].map(f64::from));
-                a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
-                    + a[2] * (b[0] * c[1] - b[1] * c[0])
-            })
-            .sum::<f64>()
-            / 6.0
+        self.sum_over_triangles(|t| {
+            let [a, b, c] = t.map(|i| self.vertices[i as usize].map(f64::from));
+            a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
+                + a[2] * (b[0] * c[1] - b[1] * c[0])
+        }) / 6.0
     }
 
     /// Surface area, mm2.
     pub fn area(&self) -> f64 {
-        self.triangles
-            .iter()
-            .map(|t| {
-                0.5 * self
-                    .face_normal(t)
-                    .iter()
-                    .map(|x| x * x)
-                    .sum::<f64>()
-                    .sqrt()
-            })
-            .sum()
+        self.sum_over_triangles(|t| {
+            0.5 * self
+                .face_normal(t)
+                .iter()
+                .map(|x| x * x)
+                .sum::<f64>()
+                .sqrt()
+        })
     }
 
     /// Unnormalised face normal (twice the area).
@@ -376,19 +632,61 @@ impl TriangleMesh {
 
     /// Unit vertex normals: area-weighted means of the adjacent face normals.
     pub fn vertex_normals(&self) -> Vec<[f32; 3]> {
-        let mut acc = vec![[0.0f64; 3]; self.vertices.len()];
-        for t in &self.triangles {
-            let n = self.face_normal(t);
-            for &i in t {
-                (0..3).for_each(|x| acc[i as usize][x] += n[x]);
-            }
-        }
-        acc.iter()
-            .map(|n| {
-                let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt().max(1e-30);
-                n.map(|x| (x / len) as f32)
+        self.area_volume_normals().2
+    }
+
+    /// Area (mm2), enclosed volume (mm3) and unit vertex normals in one pass.
+    /// The triangles are split into a fixed number of parts, each summed into
+    /// its own accumulators in parallel and the parts added in order, so the
+    /// bits do not depend on the number of threads.
+    pub fn area_volume_normals(&self) -> (f64, f64, Vec<[f32; 3]>) {
+        const PARTS: usize = 4;
+        let n = self.vertices.len();
+        let per = self.triangles.len().div_ceil(PARTS).max(1);
+        // Normals accumulate in f32: a direction needs no more, and the
+        // accumulators are half the memory to clear and add.
+        let parts: Vec<(f64, f64, Vec<[f32; 3]>)> = self
+            .triangles
+            .par_chunks(per)
+            .map(|tris| {
+                let mut acc = vec![[0.0f32; 3]; n];
+                let (mut area, mut volume) = (0.0, 0.0);
+                for t in tris {
+                    let [a, b, c] = t.map(|i| self.vertices[i as usize].map(f64::from));
+                    let (u, v) = (
+                        [0, 1, 2].map(|x| b[x] - a[x]),
+                        [0, 1, 2].map(|x| c[x] - a[x]),
+                    );
+                    let f = [
+                        u[1] * v[2] - u[2] * v[1],
+                        u[2] * v[0] - u[0] * v[2],
+                        u[0] * v[1] - u[1] * v[0],
+                    ];
+                    area += 0.5 * (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
+                    // a . (b x c) = a . (u x v) for u, v from a.
+                    volume += a[0] * f[0] + a[1] * f[1] + a[2] * f[2];
+                    let f32s = f.map(|x| x as f32);
+                    for &i in t {
+                        (0..3).for_each(|x| acc[i as usize][x] += f32s[x]);
+                    }
+                }
+                (area, volume / 6.0, acc)
             })
-            .collect()
+            .collect();
+        let normals = (0..n)
+            .into_par_iter()
+            .map(|i| {
+                let mut s = [0.0f64; 3];
+                for p in &parts {
+                    (0..3).for_each(|x| s[x] += f64::from(p.2[i][x]));
+                }
+                let len = (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt().max(1e-30);
+                s.map(|x| (x / len) as f32)
+            })
+            .collect();
+        let area = parts.iter().map(|p| p.0).sum();
+        let volume = parts.iter().map(|p| p.1).sum();
+        (area, volume, normals)
     }
 
     /// Whether every edge is shared by exactly two triangles, in opposite
@@ -553,6 +851,23 @@ mod tests {
             assert!(mesh.is_closed_and_oriented());
             // Padding closes everything: the volume is positive.
             assert!(mesh.volume() > 0.0);
+        }
+    }
+
+    #[test]
+    fn the_same_mesh_on_any_number_of_threads_and_chunks() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        let (nx, ny, nz) = (23, 17, 41);
+        let values: Vec<f32> = (0..nx * ny * nz)
+            .map(|_| rng.random_range(-1.0..1.0))
+            .collect();
+        let grid = Grid::axis_aligned([nx, ny, nz], [0.6, 0.6, 1.0], [0.0, 0.0, 0.0]);
+        let one = crate::on_threads(1, || marching_cubes(&values, &grid, 0.2));
+        assert!(one.is_closed_and_oriented() && one.triangles.len() > 5000);
+        for threads in [2, 3, 7] {
+            let many = crate::on_threads(threads, || marching_cubes(&values, &grid, 0.2));
+            assert!(many == one, "{threads} threads");
         }
     }
 

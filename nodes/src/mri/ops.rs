@@ -212,12 +212,13 @@ impl Op for IsosurfaceOp {
         mesh.smooth(params.count("smooth_iterations")?);
         ctx.metric("vertices", mesh.vertices.len() as f64);
         ctx.metric("triangles", mesh.triangles.len() as f64);
-        ctx.metric("area_mm2", mesh.area());
-        ctx.metric("volume_mm3", mesh.volume());
-        let normals: Vec<f32> = mesh.vertex_normals().into_iter().flatten().collect();
+        let (area, volume, normals) = mesh.area_volume_normals();
+        ctx.metric("area_mm2", area);
+        ctx.metric("volume_mm3", volume);
+        let normals: Vec<f32> = normals.into_flattened();
         let out = Mesh::new(
-            mesh.vertices.into_iter().flatten().collect::<Vec<f32>>(),
-            mesh.triangles.into_iter().flatten().collect::<Vec<u32>>(),
+            mesh.vertices.into_flattened(),
+            mesh.triangles.into_flattened(),
             Some(normals.into()),
             "mri_lps",
         )

@@ -326,23 +326,19 @@ impl<'a> Lattice<'a> {
         let px = self.px;
         for q in 0..self.py {
             let row = self.row(q, r);
-            for p in self.reach(&[(q, r)]) {
-                if row[p] != row[p + 1] {
-                    maps.x[q * px + p] = *next;
-                    *next += 1;
-                    emit(self.point([p, q, r], 0));
-                }
-            }
+            differing(row, &row[1..], self.reach(&[(q, r)]), |p| {
+                maps.x[q * px + p] = *next;
+                *next += 1;
+                emit(self.point([p, q, r], 0));
+            });
         }
         for q in 0..self.py - 1 {
             let (row, up) = (self.row(q, r), self.row(q + 1, r));
-            for p in self.reach(&[(q, r), (q + 1, r)]) {
-                if row[p] != up[p] {
-                    maps.y[q * px + p] = *next;
-                    *next += 1;
-                    emit(self.point([p, q, r], 1));
-                }
-            }
+            differing(row, up, self.reach(&[(q, r), (q + 1, r)]), |p| {
+                maps.y[q * px + p] = *next;
+                *next += 1;
+                emit(self.point([p, q, r], 1));
+            });
         }
     }
 
@@ -356,46 +352,81 @@ impl<'a> Lattice<'a> {
     ) {
         for q in 0..self.py {
             let (row, above) = (self.row(q, r), self.row(q, r + 1));
-            for p in self.reach(&[(q, r), (q, r + 1)]) {
-                if row[p] != above[p] {
-                    maps.z[q * self.px + p] = *next;
-                    *next += 1;
-                    emit(self.point([p, q, r], 2));
-                }
-            }
+            differing(row, above, self.reach(&[(q, r), (q, r + 1)]), |p| {
+                maps.z[q * self.px + p] = *next;
+                *next += 1;
+                emit(self.point([p, q, r], 2));
+            });
         }
     }
 
     /// Calls `cube(p, q, case)` for every cube of layer `r` the surface
     /// crosses, in order.
-    fn crossed_cubes(
-        &self,
-        r: usize,
-        column: &mut Vec<u8>,
-        mut cube: impl FnMut(usize, usize, u8),
-    ) {
-        column.resize(self.px, 0);
+    fn crossed_cubes(&self, r: usize, mut cube: impl FnMut(usize, usize, u8)) {
         for q in 0..self.py - 1 {
             let reach = self.reach(&[(q, r), (q + 1, r), (q, r + 1), (q + 1, r + 1)]);
-            if reach.is_empty() {
-                continue;
-            }
             let rows = [
                 self.row(q, r),
                 self.row(q + 1, r),
                 self.row(q, r + 1),
                 self.row(q + 1, r + 1),
             ];
-            for p in reach.start..=reach.end {
-                column[p] = rows[0][p] | (rows[1][p] << 1) | (rows[2][p] << 2) | (rows[3][p] << 3);
-            }
-            for p in reach {
-                let case = LEFT[column[p] as usize] | RIGHT[column[p + 1] as usize];
-                if case != 0 && case != 255 {
-                    cube(p, q, case);
+            let code =
+                |i: usize| rows[0][i] | (rows[1][i] << 1) | (rows[2][i] << 2) | (rows[3][i] << 3);
+            // Cube p is crossed where its corners differ: where the four rows
+            // disagree at p or at p + 1, or agree at both but change between.
+            let mut p = reach.start;
+            while p < reach.end {
+                let w: [u64; 4] = std::array::from_fn(|k| word(rows[k], p));
+                let v: [u64; 4] = std::array::from_fn(|k| word(rows[k], p + 1));
+                let (any, all) = (w[0] | w[1] | w[2] | w[3], w[0] & w[1] & w[2] & w[3]);
+                let (any1, all1) = (v[0] | v[1] | v[2] | v[3], v[0] & v[1] & v[2] & v[3]);
+                let mut x = (any ^ all) | (any1 ^ all1) | (any ^ any1);
+                if reach.end - p < 8 {
+                    x &= (1u64 << (8 * (reach.end - p))) - 1;
                 }
+                while x != 0 {
+                    let at = p + x.trailing_zeros() as usize / 8;
+                    cube(
+                        at,
+                        q,
+                        LEFT[code(at) as usize] | RIGHT[code(at + 1) as usize],
+                    );
+                    x &= x - 1;
+                }
+                p += 8;
             }
         }
+    }
+}
+
+/// Eight bytes of `s` from `at` as a word (zero past the end).
+fn word(s: &[u8], at: usize) -> u64 {
+    match s.get(at..at + 8) {
+        Some(b) => u64::from_le_bytes(b.try_into().expect("eight bytes")),
+        None => {
+            let mut b = [0u8; 8];
+            let n = s.len().saturating_sub(at).min(8);
+            b[..n].copy_from_slice(&s[at..at + n]);
+            u64::from_le_bytes(b)
+        }
+    }
+}
+
+/// Calls `f(p)` for every `p` in `range` where `a[p] != b[p]`, eight places
+/// at a time: the bytes are 0 or 1, and most places agree.
+fn differing(a: &[u8], b: &[u8], range: std::ops::Range<usize>, mut f: impl FnMut(usize)) {
+    let mut p = range.start;
+    while p < range.end {
+        let mut x = word(a, p) ^ word(b, p);
+        if range.end - p < 8 {
+            x &= (1u64 << (8 * (range.end - p))) - 1;
+        }
+        while x != 0 {
+            f(p + x.trailing_zeros() as usize / 8);
+            x &= x - 1;
+        }
+        p += 8;
     }
 }
 
@@ -477,7 +508,6 @@ pub fn marching_cubes(values: &[f32], grid: &Grid, level: f32) -> TriangleMesh {
             let mut part = Part::default();
             // Maps of the layer the cubes sit on and of the one above.
             let (mut low, mut high) = (EdgeMaps::new(plane), EdgeMaps::new(plane));
-            let mut column = Vec::new();
             let mut next = 0u32;
             let edges = &mut part.edges;
             let mut emit = |v: [f64; 3]| edges.push(to_patient(v));
@@ -492,7 +522,7 @@ pub fn marching_cubes(values: &[f32], grid: &Grid, level: f32) -> TriangleMesh {
                     let mut theirs = NEXT_CHUNK;
                     lat.number_xy(r + 1, &mut high, &mut theirs, |_| {});
                 }
-                lat.crossed_cubes(r, &mut column, |p, q, case| {
+                lat.crossed_cubes(r, |p, q, case| {
                     let entry = &table[case as usize];
                     let first_centre = CENTRE | part.centres.len() as u32;
                     for cycle in &entry.centres {
@@ -640,7 +670,7 @@ impl TriangleMesh {
     /// its own accumulators in parallel and the parts added in order, so the
     /// bits do not depend on the number of threads.
     pub fn area_volume_normals(&self) -> (f64, f64, Vec<[f32; 3]>) {
-        const PARTS: usize = 4;
+        const PARTS: usize = 2;
         let n = self.vertices.len();
         let per = self.triangles.len().div_ceil(PARTS).max(1);
         // Normals accumulate in f32: a direction needs no more, and the

@@ -5,6 +5,7 @@ use fusegraph_engine::value::{Grid, Labels, Markers, Mask, Mesh, Volume};
 use fusegraph_engine::{
     Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, Value, ValueType,
 };
+use rayon::prelude::*;
 use std::sync::Arc;
 
 fn shape_error(e: fusegraph_engine::value::ValueError) -> OpError {
@@ -309,9 +310,23 @@ impl Op for SelectMarkersOp {
     }
     fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
         let l = inputs.get::<Labels>("labels")?;
-        let count = l.data.iter().copied().max().unwrap_or(0) as usize;
-        let mut sizes = vec![0usize; count + 1];
-        l.data.iter().for_each(|&x| sizes[x as usize] += 1);
+        let count = l.data.par_iter().copied().max().unwrap_or(0) as usize;
+        // Integer counts: any split of the work gives the same sums.
+        let sizes = l
+            .data
+            .par_chunks(1 << 16)
+            .map(|chunk| {
+                let mut sizes = vec![0usize; count + 1];
+                chunk.iter().for_each(|&x| sizes[x as usize] += 1);
+                sizes
+            })
+            .reduce(
+                || vec![0usize; count + 1],
+                |mut a, b| {
+                    a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
+                    a
+                },
+            );
         let s = l.grid.spacing_mm();
         let selection = MarkerSelection {
             min_volume_mm3: params.float("min_volume_mm3")?,
@@ -325,7 +340,7 @@ impl Op for SelectMarkersOp {
             renumber[old as usize] = new as u32 + 1;
         }
         ctx.metric("found", kept.len() as f64);
-        let labels: Vec<u32> = l.data.iter().map(|&x| renumber[x as usize]).collect();
+        let labels: Vec<u32> = l.data.par_iter().map(|&x| renumber[x as usize]).collect();
         Ok(Outputs::new().with(
             "labels",
             Labels::new(l.grid.clone(), labels).map_err(shape_error)?,

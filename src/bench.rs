@@ -50,6 +50,17 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 3, value_parser = count::<1000>)]
         repeat: usize,
     },
+    /// `mri.components` (26 neighbours) and `mri.select_markers` with their
+    /// defaults on a mask (NIfTI, e.g. graphs/mri.toml's otsu_mask.nii.gz), as
+    /// bench/sitk_components.py times SimpleITK's ConnectedComponent and
+    /// LabelShapeStatistics on the same file.
+    Components {
+        /// The mask.
+        mask: std::path::PathBuf,
+        /// Repetitions; the best time of each is reported.
+        #[arg(long, default_value_t = 5, value_parser = count::<1000>)]
+        repeat: usize,
+    },
     /// Semi-global matching with stereo.sgm's defaults on rectified pairs:
     /// time (best of --repeat) and, with a truth, bad-1 / bad-2 (invalid counted
     /// as bad), MAE and coverage. Without --left: a phantom view pair rectified
@@ -164,6 +175,7 @@ pub fn run_bench(what: BenchCommand, registry: &Registry) -> anyhow::Result<()> 
             dicom,
             repeat,
         } => marching_cubes(size, dicom.as_deref(), repeat, registry),
+        BenchCommand::Components { mask, repeat } => components(&mask, repeat, registry),
         BenchCommand::Sgm {
             left,
             right,
@@ -339,10 +351,6 @@ fn marching_cubes(
     );
     // The whole `mri.isosurface` node: marching cubes, normals, area and
     // volume, and the engine value.
-    let op = anyhow::Context::context(
-        registry.get("mri.isosurface"),
-        "mri.isosurface is registered",
-    )?;
     let mut inputs = fusegraph_engine::Inputs::default();
     let volume = fusegraph_engine::value::Volume::new(grid.clone(), values.clone())?;
     inputs
@@ -352,6 +360,24 @@ fn marching_cubes(
         "level".into(),
         fusegraph_engine::Value::Scalar(std::sync::Arc::new(level as f64)),
     );
+    let (node, _) = time_op(registry, "mri.isosurface", &inputs, repeat)?;
+    println!(
+        "mri.isosurface node (smooth_iterations 0), best of {repeat}: {:.1} ms, {:.2} x marching cubes alone",
+        node * 1e3,
+        node / best
+    );
+    Ok(())
+}
+
+/// The best time of `op` (with its defaults) on `inputs` over `repeat` runs,
+/// and its last outputs.
+fn time_op(
+    registry: &Registry,
+    name: &str,
+    inputs: &fusegraph_engine::Inputs,
+    repeat: usize,
+) -> anyhow::Result<(f64, fusegraph_engine::Outputs)> {
+    let op = anyhow::Context::context(registry.get(name), format!("{name} is registered"))?;
     let params = fusegraph_engine::Params(
         op.spec()
             .params
@@ -359,17 +385,39 @@ fn marching_cubes(
             .filter_map(|p| Some((p.name.clone(), p.default.clone()?)))
             .collect(),
     );
-    let mut node = f64::MAX;
+    let mut best = f64::MAX;
+    let mut last = None;
     for _ in 0..repeat.max(1) {
-        let mut ctx = fusegraph_engine::RunCtx::new("surface", std::path::Path::new("."));
+        let mut ctx = fusegraph_engine::RunCtx::new(name, std::path::Path::new("."));
         let t = Instant::now();
-        op.run(&inputs, &params, &mut ctx)?;
-        node = node.min(t.elapsed().as_secs_f64());
+        let out = op.run(inputs, &params, &mut ctx)?;
+        best = best.min(t.elapsed().as_secs_f64());
+        last = Some(out);
     }
+    Ok((best, last.expect("ran at least once")))
+}
+
+fn components(mask: &std::path::Path, repeat: usize, registry: &Registry) -> anyhow::Result<()> {
+    use fusegraph_engine::Value;
+    use fusegraph_nodes::io::{VoxelBuf, read_nifti};
+    let nifti = read_nifti(mask).map_err(anyhow::Error::msg)?;
+    let data: Vec<u8> = match nifti.voxels {
+        VoxelBuf::U8(v) => v,
+        VoxelBuf::F32(v) => v.iter().map(|&x| u8::from(x > 0.5)).collect(),
+    };
+    let grid = nifti.grid;
+    let mut inputs = fusegraph_engine::Inputs::default();
+    let m = fusegraph_engine::value::Mask::new(grid.clone(), data)?;
+    inputs.0.insert("mask".into(), Value::from(m));
+    let (cc, out) = time_op(registry, "mri.components", &inputs, repeat)?;
+    let mut inputs = fusegraph_engine::Inputs::default();
+    inputs.0.insert("labels".into(), out.0["labels"].clone());
+    let (select, _) = time_op(registry, "mri.select_markers", &inputs, repeat)?;
     println!(
-        "mri.isosurface node (smooth_iterations 0), best of {repeat}: {:.1} ms, {:.2} x marching cubes alone",
-        node * 1e3,
-        node / best
+        "{:?} voxels, best of {repeat}: mri.components (26) {:.1} ms, mri.select_markers {:.1} ms",
+        grid.dims,
+        cc * 1e3,
+        select * 1e3
     );
     Ok(())
 }

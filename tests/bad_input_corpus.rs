@@ -89,6 +89,22 @@ fn write_graph(dir: &Path, name: &str, text: &str) {
     std::fs::write(dir.join(name), text).unwrap();
 }
 
+/// A graph `text` run without a cache, which must end with `exit` and say
+/// each of `says`.
+fn graph_case(root: &Path, name: &'static str, text: &str, exit: i32, says: &[&str]) -> Case {
+    let file = format!(
+        "case{}.toml",
+        root.read_dir().map(|d| d.count()).unwrap_or(0)
+    );
+    write_graph(root, &file, text);
+    Case {
+        name,
+        args: vec!["run".into(), file, "--no-cache".into()],
+        exit,
+        says: says.iter().map(|s| s.to_string()).collect(),
+    }
+}
+
 #[cfg(target_os = "linux")]
 #[test]
 fn every_bad_input_of_the_corpus_gets_a_clear_error_in_bounded_memory_and_time() {
@@ -211,32 +227,20 @@ fn every_bad_input_of_the_corpus_gets_a_clear_error_in_bounded_memory_and_time()
     });
 
     // Special files and absurd values where parameters are read.
-    write_graph(
+    cases.push(graph_case(
         root,
-        "image.toml",
+        "/dev/zero as an image",
         "[node.img]\nop = \"io.read_image\"\npath = \"/dev/zero\"\n",
-    );
-    cases.push(Case {
-        name: "/dev/zero as an image",
-        args: ["run", "image.toml", "--no-cache"]
-            .map(String::from)
-            .to_vec(),
-        exit: 2,
-        says: vec!["/dev/zero".into(), "not a regular file".into()],
-    });
-    write_graph(
+        2,
+        &["/dev/zero", "not a regular file"],
+    ));
+    cases.push(graph_case(
         root,
-        "design.toml",
+        "a reversed working range",
         "[node.mc]\nop = \"design.baseline_monte_carlo\"\nlens_mm = 8.0\nrange_mm = [700.0, 400.0]\n",
-    );
-    cases.push(Case {
-        name: "a reversed working range",
-        args: ["run", "design.toml", "--no-cache"]
-            .map(String::from)
-            .to_vec(),
-        exit: 2,
-        says: vec!["mc".into(), "range_mm".into()],
-    });
+        2,
+        &["mc", "range_mm"],
+    ));
     std::fs::copy(
         Path::new(env!("CARGO_MANIFEST_DIR")).join("graphs/multiview.toml"),
         root.join("multiview.toml"),

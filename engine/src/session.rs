@@ -50,13 +50,23 @@ pub fn with_graph_plugins<'a>(
     doc: &GraphDoc,
     registry: &'a Registry,
 ) -> Result<std::borrow::Cow<'a, Registry>, GraphErrors> {
-    if doc.plugins.is_empty() {
+    with_plugins(&doc.plugins, &doc.file, registry)
+}
+
+/// `registry` with the plugin libraries `files` loaded; errors name
+/// `named_by` (the graph or sweep file) and its key `plugins`.
+pub fn with_plugins<'a>(
+    files: &[std::path::PathBuf],
+    named_by: &Path,
+    registry: &'a Registry,
+) -> Result<std::borrow::Cow<'a, Registry>, GraphErrors> {
+    if files.is_empty() {
         return Ok(std::borrow::Cow::Borrowed(registry));
     }
     let mut r = registry.clone();
-    for p in &doc.plugins {
+    for p in files {
         crate::plugin::load_plugin(p, &mut r)
-            .map_err(|why| GraphError::file(ErrorKind::Plugin, &doc.file, why).at_key("plugins"))?;
+            .map_err(|why| GraphError::file(ErrorKind::Plugin, named_by, why).at_key("plugins"))?;
     }
     Ok(std::borrow::Cow::Owned(r))
 }

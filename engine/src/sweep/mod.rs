@@ -21,7 +21,7 @@ use crate::graph::GraphDoc;
 use crate::registry::Registry;
 use crate::report::NodeStatus;
 use crate::schedule::RunOptions;
-use crate::session::{RunError, run, with_graph_plugins};
+use crate::session::{RunError, run, with_graph_plugins, with_plugins};
 use crate::validate::{ValidGraph, validate};
 pub use plan::{Better, SweepPlan, Variant, load_sweep};
 use std::path::{Path, PathBuf};
@@ -31,13 +31,7 @@ pub fn validate_variants(
     plan: &SweepPlan,
     registry: &Registry,
 ) -> Result<Vec<ValidGraph>, GraphErrors> {
-    let mut registry = registry.clone();
-    for p in &plan.plugins {
-        crate::plugin::load_plugin(p, &mut registry).map_err(|why| {
-            crate::error::GraphError::file(crate::error::ErrorKind::Plugin, &plan.file, why)
-                .at_key("plugins")
-        })?;
-    }
+    let registry = with_plugins(&plan.plugins, &plan.file, registry)?;
     let doc = GraphDoc::load(&plan.graph)?;
     let registry = with_graph_plugins(&doc, &registry)?;
     let mut graphs = Vec::new();
@@ -77,7 +71,8 @@ pub fn validate_variants(
 pub struct SweepOptions {
     /// The sweep's folder: `sweep.json`, one folder per variant, the comparison.
     pub out_dir: PathBuf,
-    /// The shared disk cache (`None`: memory only, within this process).
+    /// The shared disk cache (`None`: a cache of the sweep's own under
+    /// `out_dir`, removed at the end).
     pub cache: Option<PathBuf>,
     /// Worker threads per variant's run (0 = one per core).
     pub jobs: usize,
@@ -129,21 +124,19 @@ pub fn run_sweep(
     // Without a disk cache the variants still share files that nodes made (a
     // generated phantom): they live in a cache of this sweep's own, removed
     // at the end, not in one variant's `.work` folder.
-    let private = match &options.cache {
-        Some(_) => None,
-        None => Some(tempfile_dir(&options.out_dir)?),
+    let dir = match &options.cache {
+        Some(dir) => dir.clone(),
+        None => tempfile_dir(&options.out_dir)?,
     };
-    let cache_dir = options.cache.as_deref().or(private.as_deref());
+    let private = options.cache.is_none().then(|| dir.clone());
+    // Opened once: opening cleans dead runs' temporary folders.
+    let cache = DiskCache::open(&dir)?;
     let mut runs = Vec::new();
     for i in shard_of(plan.variants.len(), options.shard) {
         let variant = &plan.variants[i];
-        let cache = match cache_dir {
-            Some(dir) => Some(DiskCache::open(dir)?),
-            None => None,
-        };
         let run_options = RunOptions {
             out_dir: options.out_dir.join(&variant.name),
-            cache,
+            cache: Some(cache.clone()),
             jobs: options.jobs,
             progress: false,
         };

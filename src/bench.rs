@@ -115,6 +115,42 @@ pub enum BenchCommand {
         #[arg(long)]
         out: Option<std::path::PathBuf>,
     },
+    /// Stereo calibration (calib.stereo_calibrate's solver with its defaults:
+    /// both cameras alone, then together) on the boards found in a folder of
+    /// chessboard pairs, e.g. `fusegraph phantom`'s calib folder; best of
+    /// --repeat. --out writes pairs.csv for bench/opencv_stereo_calibrate.py.
+    StereoCalibration {
+        /// Folder of the photos.
+        dir: std::path::PathBuf,
+        /// File names of the left photos.
+        #[arg(long, default_value = "left_*.png")]
+        left: String,
+        /// File names of the right photos.
+        #[arg(long, default_value = "right_*.png")]
+        right: String,
+        /// Inner corners per row and per column, e.g. 9x6.
+        #[arg(long, default_value = "9x6")]
+        pattern: String,
+        /// Side of a square, mm.
+        #[arg(long, default_value_t = 25.0)]
+        square_mm: f64,
+        /// Repetitions; the best time is reported.
+        #[arg(long, default_value_t = 5, value_parser = count::<1000>)]
+        repeat: usize,
+        /// Folder for pairs.csv.
+        #[arg(long)]
+        out: Option<std::path::PathBuf>,
+    },
+}
+
+/// A board pattern given as COLSxROWS (inner corners), e.g. 9x6.
+fn board_pattern(pattern: &str) -> anyhow::Result<(usize, usize)> {
+    pattern
+        .to_lowercase()
+        .split_once('x')
+        .and_then(|(c, r)| Some((c.trim().parse().ok()?, r.trim().parse().ok()?)))
+        .filter(|&(c, r): &(usize, usize)| c >= 2 && r >= 2)
+        .ok_or_else(|| anyhow::anyhow!("--pattern {pattern:?}: give COLSxROWS, e.g. 9x6"))
 }
 
 /// A count from 1 to `MAX`: a value that sizes an allocation or a loop, kept
@@ -209,15 +245,33 @@ pub fn run_bench(what: BenchCommand, registry: &Registry) -> anyhow::Result<()> 
             pattern,
             repeat,
             out,
+        } => crate::bench_chessboard::run(
+            &dir,
+            &glob,
+            board_pattern(&pattern)?,
+            repeat,
+            out.as_deref(),
+        ),
+        BenchCommand::StereoCalibration {
+            dir,
+            left,
+            right,
+            pattern,
+            square_mm,
+            repeat,
+            out,
         } => {
-            let size = pattern
-                .to_lowercase()
-                .split_once('x')
-                .and_then(|(c, r)| Some((c.trim().parse().ok()?, r.trim().parse().ok()?)))
-                .ok_or_else(|| {
-                    anyhow::anyhow!("--pattern {pattern:?}: give COLSxROWS, e.g. 9x6")
-                })?;
-            crate::bench_chessboard::run(&dir, &glob, size, repeat, out.as_deref())
+            anyhow::ensure!(
+                square_mm.is_finite() && square_mm > 0.0,
+                "--square-mm {square_mm}: give a positive size"
+            );
+            let setup = crate::bench_calibration::Setup {
+                dir: &dir,
+                globs: [&left, &right],
+                pattern: board_pattern(&pattern)?,
+                square_mm,
+            };
+            crate::bench_calibration::run(&setup, repeat, out.as_deref())
         }
     }
 }

@@ -2,6 +2,7 @@
 //! with the built-in node types. It holds no algorithm.
 
 mod bench;
+mod bench_calibration;
 mod bench_chessboard;
 mod bench_sgm;
 mod list;

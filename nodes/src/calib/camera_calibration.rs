@@ -4,11 +4,12 @@
 
 use super::homography::homography;
 use super::lm::{LeastSquares, levenberg_marquardt};
+use super::normal_equations::BlockNormal;
+use super::reprojection::{Pose, corner_residual};
 use super::zhang::{intrinsics_from_homographies, pose_from_homography};
 use crate::camera::CameraModel;
 use nalgebra::{
-    DMatrix, DVector, Isometry3, Matrix3, Point2, Point3, Rotation3, Translation3, UnitQuaternion,
-    Vector3,
+    DVector, Isometry3, Matrix3, Point2, Rotation3, Translation3, UnitQuaternion, Vector3,
 };
 
 /// One view of the board: its corners on the board (mm, z = 0) and where they
@@ -20,6 +21,14 @@ pub struct BoardView {
     /// Corner positions in the image, px.
     pub image_px: Vec<Point2<f64>>,
 }
+
+/// The calibration solvers' iteration limit (they take 10 to 20 from Zhang's
+/// start).
+pub(crate) const MAX_ITERATIONS: usize = 200;
+
+/// The calibration solvers' step tolerance (see [`levenberg_marquardt`]):
+/// below it, steps are watched for the rounding floor.
+pub(crate) const STEP_TOLERANCE: f64 = 1e-9;
 
 /// Names of the distortion coefficients, in OpenCV order.
 pub const DISTORTION_NAMES: [&str; 5] = ["k1", "k2", "p1", "p2", "k3"];
@@ -70,27 +79,46 @@ pub(crate) fn pose_from(v: &[f64]) -> Isometry3<f64> {
     )
 }
 
-/// Reprojection residuals (px, u then v per corner) of one view.
+/// The board point of a corner (mm, z = 0) as a 3-vector.
+pub(crate) fn board_point(b: &Point2<f64>) -> Vector3<f64> {
+    Vector3::new(b.x, b.y, 0.0)
+}
+
+/// Reprojection residuals (px, u then v per corner) of one view seen by a
+/// camera (`intrinsics` in solver order); `to_camera` maps a board point (mm)
+/// into the camera frame.
 pub(crate) fn view_residuals(
-    camera: &CameraModel,
-    pose: &Isometry3<f64>,
+    intrinsics: &[f64; 9],
+    to_camera: impl Fn(&Vector3<f64>) -> Vector3<f64>,
     view: &BoardView,
     out: &mut Vec<f64>,
 ) {
     for (b, m) in view.board_mm.iter().zip(&view.image_px) {
-        let c = pose * Point3::new(b.x, b.y, 0.0);
-        match camera.project(&c) {
-            Some(p) => {
-                out.push(p.x - m.x);
-                out.push(p.y - m.y);
-            }
-            // Behind the camera: a large, smooth penalty steers the solver back.
-            None => {
-                out.push(1e4);
-                out.push(1e4);
-            }
-        }
+        out.extend(corner_residual(intrinsics, &to_camera(&board_point(b)), m).r);
     }
+}
+
+/// The solver-order indices of the intrinsics estimated: fx, fy, cx, cy and
+/// the free distortion coefficients.
+pub(crate) fn free_intrinsics(free_distortion: [bool; 5]) -> Vec<usize> {
+    (0..4)
+        .chain((0..5).filter(|&d| free_distortion[d]).map(|d| d + 4))
+        .collect()
+}
+
+/// The intrinsics in solver order with the free ones taken from `x` (the
+/// first `free.len()` values from `offset`).
+pub(crate) fn intrinsics_with(
+    fixed: &[f64; 9],
+    free: &[usize],
+    x: &DVector<f64>,
+    offset: usize,
+) -> [f64; 9] {
+    let mut v = *fixed;
+    for (k, &i) in free.iter().enumerate() {
+        v[i] = x[offset + k];
+    }
+    v
 }
 
 /// Closed-form start: Zhang's K and poses, zero distortion.
@@ -142,29 +170,34 @@ struct MonoProblem<'a> {
     views: &'a [BoardView],
     free: Vec<usize>,
     fixed: [f64; 9],
-    size: (usize, usize),
 }
 
 impl MonoProblem<'_> {
     fn intrinsics(&self, x: &DVector<f64>) -> [f64; 9] {
-        let mut v = self.fixed;
-        for (k, &i) in self.free.iter().enumerate() {
-            v[i] = x[k];
-        }
-        v
+        intrinsics_with(&self.fixed, &self.free, x, 0)
+    }
+
+    fn pose(&self, x: &DVector<f64>, view: usize) -> Pose {
+        let o = self.free.len() + 6 * view;
+        Pose::new(&x.as_slice()[o..o + 6])
     }
 
     fn view_block(&self, x: &DVector<f64>, view: usize) -> Vec<f64> {
-        let camera = camera_from(&self.intrinsics(x), self.size.0, self.size.1);
-        let o = self.free.len() + 6 * view;
-        let pose = pose_from(&x.as_slice()[o..o + 6]);
+        let pose = self.pose(x, view);
         let mut r = Vec::new();
-        view_residuals(&camera, &pose, &self.views[view], &mut r);
+        view_residuals(
+            &self.intrinsics(x),
+            |b| pose.apply(b),
+            &self.views[view],
+            &mut r,
+        );
         r
     }
 }
 
 impl LeastSquares for MonoProblem<'_> {
+    type Normal = BlockNormal;
+
     fn residuals(&self, x: &DVector<f64>) -> DVector<f64> {
         DVector::from_vec(
             (0..self.views.len())
@@ -173,29 +206,43 @@ impl LeastSquares for MonoProblem<'_> {
         )
     }
 
-    fn jacobian(&self, x: &DVector<f64>) -> DMatrix<f64> {
-        let rows: usize = self.views.iter().map(|v| 2 * v.board_mm.len()).sum();
-        let mut j = DMatrix::zeros(rows, x.len());
-        let mut row = 0;
-        for v in 0..self.views.len() {
-            let n = 2 * self.views[v].board_mm.len();
-            // Each view depends on the intrinsics and its own pose only.
-            let columns =
-                (0..self.free.len()).chain(self.free.len() + 6 * v..self.free.len() + 6 * v + 6);
-            for c in columns {
-                let h = 1e-6 * x[c].abs().max(1e-2);
-                let (mut plus, mut minus) = (x.clone(), x.clone());
-                plus[c] += h;
-                minus[c] -= h;
-                let (a, b) = (self.view_block(&plus, v), self.view_block(&minus, v));
-                for k in 0..n {
-                    j[(row + k, c)] = (a[k] - b[k]) / (2.0 * h);
+    fn normal_equations(&self, x: &DVector<f64>, _: &DVector<f64>) -> BlockNormal {
+        let intrinsics = self.intrinsics(x);
+        let mut normal = BlockNormal::new(self.free.len(), self.views.len());
+        let mut d_shared = vec![0.0; self.free.len()];
+        for (v, view) in self.views.iter().enumerate() {
+            let pose = self.pose(x, v);
+            for (b, m) in view.board_mm.iter().zip(&view.image_px) {
+                let rotated = pose.rotation * board_point(b);
+                let c = corner_residual(&intrinsics, &(rotated + pose.translation), m);
+                let d_rotation = c.d_point * pose.d_rotation(&rotated);
+                for k in 0..2 {
+                    for (d, &i) in d_shared.iter_mut().zip(&self.free) {
+                        *d = c.d_intrinsics[(k, i)];
+                    }
+                    let d_pose = pose_row(&d_rotation, &c.d_point, k);
+                    normal.add(v, &d_shared, &d_pose, c.r[k]);
                 }
             }
-            row += n;
         }
-        j
+        normal
     }
+}
+
+/// Row `k` of d r / d(rotation vector, translation) from its two parts.
+pub(crate) fn pose_row(
+    d_rotation: &nalgebra::Matrix2x3<f64>,
+    d_translation: &nalgebra::Matrix2x3<f64>,
+    k: usize,
+) -> nalgebra::Vector6<f64> {
+    nalgebra::Vector6::new(
+        d_rotation[(k, 0)],
+        d_rotation[(k, 1)],
+        d_rotation[(k, 2)],
+        d_translation[(k, 0)],
+        d_translation[(k, 1)],
+        d_translation[(k, 2)],
+    )
 }
 
 /// Calibrates one camera from board views. `free_distortion` says which of k1,
@@ -217,18 +264,20 @@ pub fn calibrate_camera(
     }
     let (start, poses) = initial_guess(views, width, height)?;
     let fixed = intrinsic_vector(&start);
-    let free: Vec<usize> = (0..4)
-        .chain((0..5).filter(|&d| free_distortion[d]).map(|d| d + 4))
-        .collect();
+    let free = free_intrinsics(free_distortion);
     let problem = MonoProblem {
         views,
         free: free.clone(),
         fixed,
-        size: (width, height),
     };
     let mut x0: Vec<f64> = free.iter().map(|&i| fixed[i]).collect();
     poses.iter().for_each(|p| x0.extend(pose_vector(p)));
-    let report = levenberg_marquardt(&problem, DVector::from_vec(x0), 200, 1e-14);
+    let report = levenberg_marquardt(
+        &problem,
+        DVector::from_vec(x0),
+        MAX_ITERATIONS,
+        STEP_TOLERANCE,
+    );
     let camera = camera_from(&problem.intrinsics(&report.x), width, height);
     let poses: Vec<Isometry3<f64>> = (0..views.len())
         .map(|v| pose_from(&report.x.as_slice()[free.len() + 6 * v..free.len() + 6 * v + 6]))
@@ -301,12 +350,52 @@ pub(crate) mod tests {
                     .iter()
                     .map(|b| {
                         camera
-                            .project(&(pose * Point3::new(b.x, b.y, 0.0)))
+                            .project(&(pose * nalgebra::Point3::new(b.x, b.y, 0.0)))
                             .unwrap()
                     })
                     .collect(),
             })
             .collect()
+    }
+
+    /// `views` with every corner moved by up to `noise_px` in u and v, the
+    /// same for a given `seed`.
+    pub(crate) fn with_noise(
+        mut views: Vec<BoardView>,
+        noise_px: f64,
+        seed: u64,
+    ) -> Vec<BoardView> {
+        let mut state = 0x9E37_79B9_7F4A_7C15u64 ^ seed;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            ((state >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 2.0 * noise_px
+        };
+        for v in &mut views {
+            for p in &mut v.image_px {
+                *p += nalgebra::Vector2::new(next(), next());
+            }
+        }
+        views
+    }
+
+    #[test]
+    fn its_normal_equations_are_those_of_central_differences() {
+        let views = with_noise(views_of(&true_camera(), &true_poses()), 0.2, 3);
+        let c = calibrate_camera(&views, 800, 600, [true; 5]).unwrap();
+        let problem = MonoProblem {
+            views: &views,
+            free: free_intrinsics([true; 5]),
+            fixed: intrinsic_vector(&c.camera),
+        };
+        let mut x: Vec<f64> = intrinsic_vector(&c.camera).to_vec();
+        c.poses.iter().for_each(|p| x.extend(pose_vector(p)));
+        let mut away = DVector::from_vec(x);
+        for (i, v) in away.iter_mut().enumerate() {
+            *v += 1e-3 * (i as f64).cos() * v.abs().max(1.0);
+        }
+        crate::calib::lm::assert_normal_equations_match(&problem, &away, 1e-6);
     }
 
     #[test]

@@ -6,8 +6,10 @@ mod camera_calibration;
 mod detect;
 mod homography;
 mod lm;
+mod normal_equations;
 mod ops;
 mod rectify;
+mod reprojection;
 mod stereo;
 mod subpixel;
 mod views;
@@ -19,6 +21,7 @@ pub use camera_calibration::{
 pub use detect::{Refusal, find_chessboard};
 pub use homography::homography;
 pub use lm::{LeastSquares, LmReport, levenberg_marquardt};
+pub use normal_equations::{BlockNormal, DampedSystem, DenseNormal};
 pub use rectify::{StereoRectification, rectify, remap};
 pub use stereo::{StereoCalibration, calibrate_stereo};
 pub use subpixel::{refine_corner, window_for_square};

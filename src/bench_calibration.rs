@@ -1,0 +1,145 @@
+//! `fusegraph bench stereo-calibration`: `calib.stereo_calibrate`'s solver
+//! (both single-camera calibrations, then Levenberg-Marquardt over both
+//! cameras, the rig and every pose) timed on the corners our detector finds in
+//! a folder of chessboard pairs, best of N. Writes the pairs' corners as CSV so
+//! that `bench/opencv_stereo_calibrate.py` times OpenCV's `calibrateCamera` x 2
+//! + `stereoCalibrate` on exactly the same corners.
+
+use fusegraph_nodes::calib::{
+    BoardView, PhotoRecord, Side, calibrate_stereo, find_chessboard, numbered_photos, pair_views,
+};
+use std::fmt::Write as _;
+use std::path::Path;
+use std::time::Instant;
+
+/// What the bench is given: the folder, the two globs, the board.
+pub struct Setup<'a> {
+    /// Folder of the photos.
+    pub dir: &'a Path,
+    /// File names of the left and the right photos.
+    pub globs: [&'a str; 2],
+    /// Inner corners per row and per column.
+    pub pattern: (usize, usize),
+    /// Side of a square, mm.
+    pub square_mm: f64,
+}
+
+/// One camera's boards, found by `calib.find_chessboard`'s detector.
+fn side(setup: &Setup, glob: &str) -> anyhow::Result<Side> {
+    let pattern = glob::Pattern::new(glob)?;
+    let photos = numbered_photos(setup.dir, &pattern).map_err(anyhow::Error::msg)?;
+    anyhow::ensure!(
+        !photos.files.is_empty(),
+        "{}: no photo matches {glob:?}",
+        setup.dir.display()
+    );
+    let (cols, rows) = setup.pattern;
+    let mut side = Side {
+        photos: Some(Default::default()),
+        ..Default::default()
+    };
+    for (&view, file) in &photos.files {
+        let img = fusegraph_nodes::io::load_grey(file)?;
+        let size = (img.width, img.height);
+        let refusal = match find_chessboard(&img.levels, img.width, img.height, cols, rows) {
+            Ok(corners) => {
+                let board_mm = (0..corners.len())
+                    .map(|k| {
+                        nalgebra::Point2::new(
+                            (k % cols) as f64 * setup.square_mm,
+                            (k / cols) as f64 * setup.square_mm,
+                        )
+                    })
+                    .collect();
+                let view_boards = BoardView {
+                    board_mm,
+                    image_px: corners,
+                };
+                side.boards.insert(view, (view_boards, size));
+                PhotoRecord::FOUND
+            }
+            Err(why) => why.code(),
+        };
+        if let Some(records) = side.photos.as_mut() {
+            records.insert(view, PhotoRecord { refusal, size });
+        }
+    }
+    Ok(side)
+}
+
+/// The pairs as CSV: one row per corner of each pair.
+fn pairs_csv(
+    views: &[u32],
+    pairs: &[(BoardView, BoardView)],
+    sizes: [(usize, usize); 2],
+) -> String {
+    let mut csv = String::from(
+        "view,corner,board_x_mm,board_y_mm,left_x_px,left_y_px,right_x_px,right_y_px,width_px,height_px\n",
+    );
+    for (view, (l, r)) in views.iter().zip(pairs) {
+        for k in 0..l.board_mm.len() {
+            let _ = writeln!(
+                csv,
+                "{view},{k},{},{},{:.9},{:.9},{:.9},{:.9},{},{}",
+                l.board_mm[k].x,
+                l.board_mm[k].y,
+                l.image_px[k].x,
+                l.image_px[k].y,
+                r.image_px[k].x,
+                r.image_px[k].y,
+                sizes[0].0,
+                sizes[0].1
+            );
+        }
+    }
+    csv
+}
+
+/// Finds the boards (not timed), then times the stereo calibration with
+/// `calib.stereo_calibrate`'s defaults (k1 k2 p1 p2 free) and prints its
+/// results; writes `pairs.csv` under `out` if given.
+pub fn run(setup: &Setup, repeat: usize, out: Option<&Path>) -> anyhow::Result<()> {
+    let left = side(setup, setup.globs[0])?;
+    let right = side(setup, setup.globs[1])?;
+    let pairing = pair_views(&left, &right, 3).map_err(anyhow::Error::msg)?;
+    let free = [true, true, true, true, false];
+    let mut best = f64::MAX;
+    let mut last = None;
+    for _ in 0..repeat.max(1) {
+        let t = Instant::now();
+        let s =
+            calibrate_stereo(&pairing.pairs, pairing.sizes, free).map_err(anyhow::Error::msg)?;
+        best = best.min(t.elapsed().as_secs_f64());
+        last = Some(s);
+    }
+    let s = last.expect("ran at least once");
+    let corners: usize = pairing.pairs.iter().map(|p| p.0.board_mm.len()).sum();
+    println!(
+        "{} pairs ({corners} corners per side), k1 k2 p1 p2 free: rms {:.6} px (left {:.6}, right {:.6}); \
+         left fx {:.4} fy {:.4} cx {:.4} cy {:.4}; baseline {:.5} mm",
+        pairing.pairs.len(),
+        s.rms_px,
+        s.rms_left_right_px[0],
+        s.rms_left_right_px[1],
+        s.left.fx,
+        s.left.fy,
+        s.left.cx,
+        s.left.cy,
+        s.left_to_right.translation.vector.norm()
+    );
+    println!(
+        "stereo calibration (both cameras alone, then together), best of {repeat}: {:.1} ms",
+        best * 1e3
+    );
+    if let Some(out) = out {
+        std::fs::create_dir_all(out)?;
+        let path = out.join("pairs.csv");
+        std::fs::write(
+            &path,
+            pairs_csv(&pairing.views, &pairing.pairs, pairing.sizes),
+        )
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        println!("pairs: {}", path.display());
+    }
+    Ok(())
+}

@@ -50,6 +50,16 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 3, value_parser = count::<1000>)]
         repeat: usize,
     },
+    /// `mri.otsu` with its defaults (256 bins) on a DICOM series, as
+    /// `../shared/bench/peers.py otsu DIR` times SimpleITK's
+    /// OtsuThresholdImageFilter on the same series.
+    Otsu {
+        /// The series (folder).
+        dicom: std::path::PathBuf,
+        /// Repetitions; the best time is reported.
+        #[arg(long, default_value_t = 5, value_parser = count::<1000>)]
+        repeat: usize,
+    },
     /// `mri.components` (26 neighbours) and `mri.select_markers` with their
     /// defaults on a mask (NIfTI, e.g. graphs/mri.toml's otsu_mask.nii.gz), as
     /// bench/sitk_components.py times SimpleITK's ConnectedComponent and
@@ -212,6 +222,7 @@ pub fn run_bench(what: BenchCommand, registry: &Registry) -> anyhow::Result<()> 
             repeat,
         } => marching_cubes(size, dicom.as_deref(), repeat, registry),
         BenchCommand::Components { mask, repeat } => components(&mask, repeat, registry),
+        BenchCommand::Otsu { dicom, repeat } => otsu(&dicom, repeat, registry),
         BenchCommand::Sgm {
             left,
             right,
@@ -449,6 +460,25 @@ fn time_op(
         last = Some(out);
     }
     Ok((best, last.expect("ran at least once")))
+}
+
+fn otsu(dicom: &std::path::Path, repeat: usize, registry: &Registry) -> anyhow::Result<()> {
+    use fusegraph_engine::Value;
+    let s = fusegraph_nodes::dicom::load_series(dicom, None)?;
+    let dims = s.grid.dims;
+    let volume = fusegraph_engine::value::Volume::new(s.grid, s.voxels)?;
+    let mut inputs = fusegraph_engine::Inputs::default();
+    inputs.0.insert("volume".into(), Value::from(volume));
+    let (t, out) = time_op(registry, "mri.otsu", &inputs, repeat)?;
+    let threshold = match out.0.get("threshold") {
+        Some(Value::Scalar(v)) => **v,
+        _ => f64::NAN,
+    };
+    println!(
+        "{dims:?} voxels, best of {repeat}: mri.otsu {:.1} ms, threshold {threshold:.4}",
+        t * 1e3
+    );
+    Ok(())
 }
 
 fn components(mask: &std::path::Path, repeat: usize, registry: &Registry) -> anyhow::Result<()> {

@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# Every stage of README's speed table, ours beside its best peer, alternating
+# for ROUNDS rounds in one sitting (take the best of each line over the rounds).
+# Needs a release build and the peers' venv (../shared/bench/setup-peers.sh);
+# never part of the tests.
+#
+#   cargo build --release
+#   bench/side_by_side.sh [ROUNDS]        # default 3; writes under /tmp/fusegraph-side-by-side
+set -euo pipefail
+cd "$(dirname "$0")/.."
+rounds=${1:-3}
+fg=target/release/fusegraph
+py=${PEERS_PYTHON:-$HOME/.cache/fusegraph-peers/bin/python}
+peers=../shared/bench/peers.py
+work=${TMPDIR:-/tmp}/fusegraph-side-by-side
+[ -x "$fg" ] || { echo "build first: cargo build --release" >&2; exit 2; }
+[ -x "$py" ] || { echo "no peers' venv at $py: run ../shared/bench/setup-peers.sh or set PEERS_PYTHON" >&2; exit 2; }
+mkdir -p "$work"
+[ -d "$work/phantom/mri" ] || "$fg" phantom --out "$work/phantom" >/dev/null 2>&1
+[ -f "$work/mri/otsu_mask.nii.gz" ] || "$fg" run graphs/mri.toml --out "$work/mri" >/dev/null 2>&1
+series=$work/phantom/mri
+echo "# $(date -u +%F) $(nproc) cores: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs)"
+for round in $(seq "$rounds"); do
+  echo "## round $round"
+  RAYON_NUM_THREADS=1 "$fg" bench marching-cubes --dicom "$series" --repeat 10 | sed 's/^/ours 1 thread: /'
+  "$fg" bench marching-cubes --dicom "$series" --repeat 10 | sed 's/^/ours: /'
+  "$py" "$peers" --repeat 10 mc "$series" | grep -i vtk
+  "$fg" bench otsu "$series" --repeat 5 | sed 's/^/ours: /'
+  "$py" "$peers" --repeat 5 otsu "$series"
+  "$fg" bench components "$work/mri/otsu_mask.nii.gz" --repeat 5 | sed 's/^/ours: /'
+  "$py" bench/sitk_components.py "$work/mri/otsu_mask.nii.gz" --repeat 5
+  "$fg" bench icp --points 100000 --iterations 30 --out "$work/icp" | grep -E "ms per iteration" | sed 's/^/ours:/'
+  "$py" "$peers" --repeat 3 icp "$work/icp/source.ply" "$work/icp/target.ply" --iters 30
+  "$py" "$peers" --repeat 3 icp "$work/icp/source.ply" "$work/icp/target.ply" --iters 30 --plane
+  RAYON_NUM_THREADS=1 "$fg" bench stereo-calibration "$work/phantom/calib" --repeat 10 --out "$work/calib" | tail -2 | head -1 | sed 's/^/ours 1 thread: /'
+  "$py" bench/opencv_stereo_calibrate.py "$work/calib/pairs.csv" --repeat 10 --threads 1 | tail -1 | sed 's/^/opencv 1 thread: /'
+  "$fg" bench stereo-calibration "$work/phantom/calib" --repeat 10 --out "$work/calib" | tail -2 | head -1 | sed 's/^/ours: /'
+  "$py" bench/opencv_stereo_calibrate.py "$work/calib/pairs.csv" --repeat 10 | tail -1 | sed 's/^/opencv: /'
+done

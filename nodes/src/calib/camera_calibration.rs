@@ -46,6 +46,8 @@ pub struct CameraCalibration {
     pub view_rms_px: Vec<f64>,
     /// LM iterations.
     pub iterations: usize,
+    /// Whether LM reached the minimum (rather than its iteration limit).
+    pub converged: bool,
 }
 
 /// Intrinsic parameters in solver order: fx, fy, cx, cy, k1, k2, p1, p2, k3.
@@ -295,6 +297,7 @@ pub fn calibrate_camera(
         rms_px: (report.cost / corners as f64).sqrt(),
         view_rms_px,
         iterations: report.iterations,
+        converged: report.converged,
     })
 }
 

@@ -342,7 +342,8 @@ impl CalibrateCameraOp {
         CalibrateCameraOp(
             OpSpec::new(
                 "calib.calibrate_camera",
-                2,
+                // 3: analytic Jacobians, stopped on the exact minimum.
+                3,
                 "Zhang calibration refined by Levenberg-Marquardt -> Camera",
             )
             .input(
@@ -386,6 +387,13 @@ impl Op for CalibrateCameraOp {
             calibrate_camera(&views, w, h, distortion_mask(params)?).map_err(OpError::invalid)?;
         ctx.metric("rms_px", c.rms_px);
         ctx.metric("views", views.len() as f64);
+        ctx.metric("iterations", c.iterations as f64);
+        if !c.converged {
+            ctx.note(format!(
+                "the solver stopped after {} iterations short of the minimum: check the corners",
+                c.iterations
+            ));
+        }
         for (id, e) in ids.iter().zip(&c.view_rms_px) {
             ctx.metric(&format!("view_{id}_rms_px"), *e);
         }
@@ -405,7 +413,8 @@ impl StereoCalibrateOp {
         StereoCalibrateOp(
             OpSpec::new(
                 "calib.stereo_calibrate",
-                2,
+                // 3: analytic Jacobians, stopped on the exact minimum.
+                3,
                 "Both cameras and the rig extrinsics, refined jointly -> StereoRig",
             )
             .input(
@@ -465,6 +474,13 @@ impl Op for StereoCalibrateOp {
         let s = calibrate_stereo(&pairing.pairs, pairing.sizes, distortion_mask(params)?)
             .map_err(OpError::invalid)?;
         ctx.metric("pairs", pairing.pairs.len() as f64);
+        ctx.metric("iterations", s.iterations as f64);
+        if !s.converged {
+            ctx.note(format!(
+                "the solver stopped after {} iterations short of the minimum: check the corners",
+                s.iterations
+            ));
+        }
         ctx.metric("pairs_left_out", pairing.dropped.len() as f64);
         ctx.metric("rms_px", s.rms_px);
         ctx.metric("rms_left_px", s.rms_left_right_px[0]);

@@ -31,6 +31,11 @@ pub struct StereoCalibration {
     pub pair_rms_px: Vec<f64>,
     /// The single-camera calibrations it started from.
     pub mono: [CameraCalibration; 2],
+    /// LM iterations of the joint refinement.
+    pub iterations: usize,
+    /// Whether the joint refinement reached the minimum (rather than its
+    /// iteration limit).
+    pub converged: bool,
 }
 
 /// The solver vector: the left camera's free intrinsics, the right's, the rig
@@ -256,6 +261,8 @@ pub fn calibrate_stereo(
         ],
         pair_rms_px,
         mono: [left, right],
+        iterations: report.iterations,
+        converged: report.converged,
     })
 }
 

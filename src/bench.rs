@@ -128,10 +128,15 @@ pub enum BenchCommand {
     /// Stereo calibration (calib.stereo_calibrate's solver with its defaults:
     /// both cameras alone, then together) on the boards found in a folder of
     /// chessboard pairs, e.g. `fusegraph phantom`'s calib folder; best of
-    /// --repeat. --out writes pairs.csv for bench/opencv_stereo_calibrate.py.
+    /// --repeat. --out writes pairs.csv for bench/opencv_stereo_calibrate.py;
+    /// --pairs times a given corner set instead.
     StereoCalibration {
         /// Folder of the photos.
-        dir: std::path::PathBuf,
+        #[arg(required_unless_present = "pairs", conflicts_with = "pairs")]
+        dir: Option<std::path::PathBuf>,
+        /// A corner set (the CSV --out writes) to calibrate instead of photos.
+        #[arg(long)]
+        pairs: Option<std::path::PathBuf>,
         /// File names of the left photos.
         #[arg(long, default_value = "left_*.png")]
         left: String,
@@ -265,6 +270,7 @@ pub fn run_bench(what: BenchCommand, registry: &Registry) -> anyhow::Result<()> 
         ),
         BenchCommand::StereoCalibration {
             dir,
+            pairs,
             left,
             right,
             pattern,
@@ -276,13 +282,19 @@ pub fn run_bench(what: BenchCommand, registry: &Registry) -> anyhow::Result<()> 
                 square_mm.is_finite() && square_mm > 0.0,
                 "--square-mm {square_mm}: give a positive size"
             );
-            let setup = crate::bench_calibration::Setup {
-                dir: &dir,
-                globs: [&left, &right],
-                pattern: board_pattern(&pattern)?,
-                square_mm,
+            let pairing = match (pairs, dir) {
+                (Some(file), _) => crate::bench_calibration::read_pairs(&file)?,
+                (None, Some(dir)) => {
+                    crate::bench_calibration::find_pairs(&crate::bench_calibration::Setup {
+                        dir: &dir,
+                        globs: [&left, &right],
+                        pattern: board_pattern(&pattern)?,
+                        square_mm,
+                    })?
+                }
+                (None, None) => anyhow::bail!("give a folder of photos or --pairs FILE"),
             };
-            crate::bench_calibration::run(&setup, repeat, out.as_deref())
+            crate::bench_calibration::run(&pairing, repeat, out.as_deref())
         }
     }
 }

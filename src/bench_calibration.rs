@@ -3,10 +3,12 @@
 //! cameras, the rig and every pose) timed on the corners our detector finds in
 //! a folder of chessboard pairs, best of N. Writes the pairs' corners as CSV so
 //! that `bench/opencv_stereo_calibrate.py` times OpenCV's `calibrateCamera` x 2
-//! + `stereoCalibrate` on exactly the same corners.
+//! + `stereoCalibrate` on exactly the same corners; `--pairs` reads such a
+//! file back (or one of other corners) instead of finding the boards.
 
 use fusegraph_nodes::calib::{
-    BoardView, PhotoRecord, Side, calibrate_stereo, find_chessboard, numbered_photos, pair_views,
+    BoardView, Pairing, PhotoRecord, Side, calibrate_stereo, find_chessboard, numbered_photos,
+    pair_views,
 };
 use std::fmt::Write as _;
 use std::path::Path;
@@ -67,15 +69,80 @@ fn side(setup: &Setup, glob: &str) -> anyhow::Result<Side> {
     Ok(side)
 }
 
+/// The header of the pairs' CSV.
+const PAIRS_HEADER: &str = "view,corner,board_x_mm,board_y_mm,left_x_px,left_y_px,right_x_px,right_y_px,width_px,height_px";
+
+/// Pairs read back from the CSV [`pairs_csv`] writes (or one made by hand:
+/// rows of a view together, the same corners in the same order on both
+/// sides).
+pub fn read_pairs(path: &Path) -> anyhow::Result<Pairing> {
+    let text =
+        std::fs::read_to_string(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let mut lines = text.lines().enumerate();
+    let header = lines.next().map(|(_, l)| l.trim()).unwrap_or_default();
+    anyhow::ensure!(
+        header == PAIRS_HEADER,
+        "{}: the first line must be {PAIRS_HEADER:?}",
+        path.display()
+    );
+    let mut pairing = Pairing {
+        views: Vec::new(),
+        pairs: Vec::new(),
+        sizes: [(0, 0); 2],
+        dropped: Vec::new(),
+    };
+    for (number, line) in lines.filter(|(_, l)| !l.trim().is_empty()) {
+        let at = || format!("{} line {}", path.display(), number + 1);
+        let f: Vec<f64> = line
+            .split(',')
+            .map(|x| x.trim().parse::<f64>())
+            .collect::<Result<_, _>>()
+            .map_err(|e| anyhow::anyhow!("{}: {e}", at()))?;
+        anyhow::ensure!(
+            f.len() == 10 && f.iter().all(|x| x.is_finite()),
+            "{}: 10 finite numbers expected",
+            at()
+        );
+        let view = f[0] as u32;
+        let size = (f[8] as usize, f[9] as usize);
+        if pairing.views.last() != Some(&view) {
+            anyhow::ensure!(
+                !pairing.views.contains(&view),
+                "{}: view {view}'s rows are not together",
+                at()
+            );
+            pairing.views.push(view);
+            let empty = || BoardView {
+                board_mm: Vec::new(),
+                image_px: Vec::new(),
+            };
+            pairing.pairs.push((empty(), empty()));
+            pairing.sizes = [size; 2];
+        }
+        anyhow::ensure!(pairing.sizes[0] == size, "{}: another image size", at());
+        let (l, r) = pairing.pairs.last_mut().expect("pushed above");
+        let board = nalgebra::Point2::new(f[2], f[3]);
+        l.board_mm.push(board);
+        r.board_mm.push(board);
+        l.image_px.push(nalgebra::Point2::new(f[4], f[5]));
+        r.image_px.push(nalgebra::Point2::new(f[6], f[7]));
+    }
+    anyhow::ensure!(
+        pairing.pairs.len() >= 3,
+        "{}: {} pairs; calibration needs at least 3",
+        path.display(),
+        pairing.pairs.len()
+    );
+    Ok(pairing)
+}
+
 /// The pairs as CSV: one row per corner of each pair.
 fn pairs_csv(
     views: &[u32],
     pairs: &[(BoardView, BoardView)],
     sizes: [(usize, usize); 2],
 ) -> String {
-    let mut csv = String::from(
-        "view,corner,board_x_mm,board_y_mm,left_x_px,left_y_px,right_x_px,right_y_px,width_px,height_px\n",
-    );
+    let mut csv = format!("{PAIRS_HEADER}\n");
     for (view, (l, r)) in views.iter().zip(pairs) {
         for k in 0..l.board_mm.len() {
             let _ = writeln!(
@@ -95,13 +162,17 @@ fn pairs_csv(
     csv
 }
 
-/// Finds the boards (not timed), then times the stereo calibration with
-/// `calib.stereo_calibrate`'s defaults (k1 k2 p1 p2 free) and prints its
-/// results; writes `pairs.csv` under `out` if given.
-pub fn run(setup: &Setup, repeat: usize, out: Option<&Path>) -> anyhow::Result<()> {
+/// Finds the boards (not timed).
+pub fn find_pairs(setup: &Setup) -> anyhow::Result<Pairing> {
     let left = side(setup, setup.globs[0])?;
     let right = side(setup, setup.globs[1])?;
-    let pairing = pair_views(&left, &right, 3).map_err(anyhow::Error::msg)?;
+    pair_views(&left, &right, 3).map_err(anyhow::Error::msg)
+}
+
+/// Times the stereo calibration of `pairing` with `calib.stereo_calibrate`'s
+/// defaults (k1 k2 p1 p2 free) and prints its results; writes `pairs.csv`
+/// under `out` if given.
+pub fn run(pairing: &Pairing, repeat: usize, out: Option<&Path>) -> anyhow::Result<()> {
     let free = [true, true, true, true, false];
     let mut best = f64::MAX;
     let mut last = None;

@@ -177,3 +177,75 @@ fn a_decompression_bomb_fails_clearly_under_a_memory_limit() {
         "a report is written"
     );
 }
+
+/// `bench stereo-calibration --pairs` on a corner set made here from the
+/// paper's rig: exact corners give the rig back, the set it writes is the
+/// one it read, and a broken set is refused naming the file and line.
+#[test]
+fn the_calibration_bench_reads_a_corner_set() {
+    use fusegraph_nodes::phantom::Rig;
+    use nalgebra::{Isometry3, Point3, Vector3};
+    let rig = Rig::paper_rig();
+    let mut csv = String::from(
+        "view,corner,board_x_mm,board_y_mm,left_x_px,left_y_px,right_x_px,right_y_px,width_px,height_px\n",
+    );
+    let poses = [
+        ([0.3, -0.2, 0.1], [-100.0, -60.0, 520.0]),
+        ([-0.25, 0.35, -0.2], [-90.0, -80.0, 600.0]),
+        ([0.1, 0.4, 0.3], [-120.0, -50.0, 480.0]),
+        ([-0.4, -0.1, 0.0], [-80.0, -70.0, 650.0]),
+    ];
+    for (view, (r, t)) in poses.iter().enumerate() {
+        let pose = Isometry3::new(Vector3::from(*t), Vector3::from(*r));
+        for k in 0..54 {
+            let board = Point3::new((k % 9) as f64 * 25.0, (k / 9) as f64 * 25.0, 0.0);
+            let l = rig.left.project(&(pose * board)).unwrap();
+            let r = rig
+                .right
+                .project(&(rig.left_to_right * pose * board))
+                .unwrap();
+            csv.push_str(&format!(
+                "{view},{k},{},{},{:.9},{:.9},{:.9},{:.9},800,600\n",
+                board.x, board.y, l.x, l.y, r.x, r.y
+            ));
+        }
+    }
+    let t = tempfile::tempdir().unwrap();
+    std::fs::write(t.path().join("pairs.csv"), &csv).unwrap();
+    let o = fusegraph(
+        &[
+            "bench",
+            "stereo-calibration",
+            "--pairs",
+            "pairs.csv",
+            "--repeat",
+            "1",
+            "--out",
+            "again",
+        ],
+        t.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let printed = String::from_utf8_lossy(&o.stdout).into_owned();
+    let baseline = rig.left_to_right.translation.vector.norm();
+    assert!(
+        printed.contains("4 pairs") && printed.contains(&format!("baseline {baseline:.5} mm")),
+        "{printed}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(t.path().join("again/pairs.csv")).unwrap(),
+        csv
+    );
+    let broken = csv.replacen("800,600\n", "800\n", 1);
+    std::fs::write(t.path().join("broken.csv"), broken).unwrap();
+    let o = fusegraph(
+        &["bench", "stereo-calibration", "--pairs", "broken.csv"],
+        t.path(),
+    );
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("broken.csv line 2: 10 finite numbers expected"),
+        "{}",
+        stderr(&o)
+    );
+}

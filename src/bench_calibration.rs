@@ -2,9 +2,9 @@
 //! (both single-camera calibrations, then Levenberg-Marquardt over both
 //! cameras, the rig and every pose) timed on the corners our detector finds in
 //! a folder of chessboard pairs, best of N. Writes the pairs' corners as CSV so
-//! that `bench/opencv_stereo_calibrate.py` times OpenCV's `calibrateCamera` x 2
-//! + `stereoCalibrate` on exactly the same corners; `--pairs` reads such a
-//! file back (or one of other corners) instead of finding the boards.
+//! that `bench/opencv_stereo_calibrate.py` times OpenCV's `calibrateCamera`
+//! twice and `stereoCalibrate` on exactly the same corners; `--pairs` reads
+//! such a file back (or one of other corners) instead of finding the boards.
 
 use fusegraph_nodes::calib::{
     BoardView, Pairing, PhotoRecord, Side, calibrate_stereo, find_chessboard, numbered_photos,

@@ -49,6 +49,9 @@ pub enum BenchCommand {
         /// Repetitions; the best time is reported.
         #[arg(long, default_value_t = 3, value_parser = count::<1000>)]
         repeat: usize,
+        /// Also time the node with this many Taubin smoothing iterations.
+        #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=1000))]
+        smooth: u32,
     },
     /// `mri.otsu` with its defaults (256 bins) on a DICOM series, as
     /// `../shared/bench/peers.py otsu DIR` times SimpleITK's
@@ -225,7 +228,8 @@ pub fn run_bench(what: BenchCommand, registry: &Registry) -> anyhow::Result<()> 
             size,
             dicom,
             repeat,
-        } => marching_cubes(size, dicom.as_deref(), repeat, registry),
+            smooth,
+        } => marching_cubes(size, dicom.as_deref(), repeat, smooth, registry),
         BenchCommand::Components { mask, repeat } => components(&mask, repeat, registry),
         BenchCommand::Otsu { dicom, repeat } => otsu(&dicom, repeat, registry),
         BenchCommand::Sgm {
@@ -386,6 +390,7 @@ fn marching_cubes(
     n: usize,
     dicom: Option<&std::path::Path>,
     repeat: usize,
+    smooth: u32,
     registry: &Registry,
 ) -> anyhow::Result<()> {
     use fusegraph_engine::value::Grid;
@@ -439,10 +444,22 @@ fn marching_cubes(
     );
     let (node, _) = time_op(registry, "mri.isosurface", &inputs, repeat)?;
     println!(
-        "mri.isosurface node (smooth_iterations 0), best of {repeat}: {:.1} ms, {:.2} x marching cubes alone",
+        "mri.isosurface node (smooth_iterations 0, as in graphs/mri.toml), best of {repeat}: {:.1} ms, {:.2} x marching cubes alone",
         node * 1e3,
         node / best
     );
+    if smooth > 0 {
+        let set = [(
+            "smooth_iterations",
+            fusegraph_engine::ParamValue::Int(smooth as i64),
+        )];
+        let (node, _) = time_op_with(registry, "mri.isosurface", &inputs, &set, repeat)?;
+        println!(
+            "mri.isosurface node (smooth_iterations {smooth}), best of {repeat}: {:.1} ms, {:.2} x marching cubes alone",
+            node * 1e3,
+            node / best
+        );
+    }
     Ok(())
 }
 
@@ -454,14 +471,28 @@ fn time_op(
     inputs: &fusegraph_engine::Inputs,
     repeat: usize,
 ) -> anyhow::Result<(f64, fusegraph_engine::Outputs)> {
+    time_op_with(registry, name, inputs, &[], repeat)
+}
+
+/// [`time_op`] with some parameters other than their defaults.
+fn time_op_with(
+    registry: &Registry,
+    name: &str,
+    inputs: &fusegraph_engine::Inputs,
+    set: &[(&str, fusegraph_engine::ParamValue)],
+    repeat: usize,
+) -> anyhow::Result<(f64, fusegraph_engine::Outputs)> {
     let op = anyhow::Context::context(registry.get(name), format!("{name} is registered"))?;
-    let params = fusegraph_engine::Params(
+    let mut params = fusegraph_engine::Params(
         op.spec()
             .params
             .iter()
             .filter_map(|p| Some((p.name.clone(), p.default.clone()?)))
             .collect(),
     );
+    for (key, value) in set {
+        params.0.insert((*key).to_string(), value.clone());
+    }
     let mut best = f64::MAX;
     let mut last = None;
     for _ in 0..repeat.max(1) {

@@ -742,39 +742,105 @@ impl TriangleMesh {
     }
 
     /// Taubin smoothing (lambda 0.5, mu -0.53): shrink-free removal of the
-    /// voxel staircase, `iterations` pairs of passes.
+    /// voxel staircase, `iterations` pairs of passes. Linear in the mesh
+    /// size; each pass is parallel over the vertices and reads only the
+    /// previous pass's positions, so the bits do not depend on the threads.
     pub fn smooth(&mut self, iterations: usize) {
         if iterations == 0 {
             return;
         }
-        let mut neighbours: Vec<Vec<u32>> = vec![Vec::new(); self.vertices.len()];
-        for t in &self.triangles {
-            for e in 0..3 {
-                let (a, b) = (t[e], t[(e + 1) % 3]);
-                neighbours[a as usize].push(b);
-                neighbours[b as usize].push(a);
-            }
-        }
-        neighbours.par_iter_mut().for_each(|n| {
-            n.sort_unstable();
-            n.dedup();
-        });
+        let neighbours = Neighbours::of(self);
+        let mut previous = self.vertices.clone();
         for _ in 0..iterations {
             for factor in [0.5f32, -0.53] {
-                let current = self.vertices.clone();
+                std::mem::swap(&mut previous, &mut self.vertices);
                 self.vertices.par_iter_mut().enumerate().for_each(|(i, v)| {
-                    let n = &neighbours[i];
+                    let old = previous[i];
+                    let n = neighbours.of_vertex(i);
+                    *v = old;
                     if n.is_empty() {
                         return;
                     }
                     let mut mean = [0.0f32; 3];
                     for &j in n {
-                        (0..3).for_each(|x| mean[x] += current[j as usize][x]);
+                        (0..3).for_each(|x| mean[x] += previous[j as usize][x]);
                     }
                     (0..3).for_each(|x| v[x] += factor * (mean[x] / n.len() as f32 - v[x]));
                 });
             }
         }
+    }
+}
+
+/// Each vertex's neighbours along the mesh's edges, ascending and without
+/// repeats, in one flat array (compressed rows).
+struct Neighbours {
+    /// Vertex i's neighbours are `flat[start[i]..start[i + 1]]`.
+    start: Vec<usize>,
+    flat: Vec<u32>,
+}
+
+impl Neighbours {
+    fn of(mesh: &TriangleMesh) -> Self {
+        let n = mesh.vertices.len();
+        // Every triangle names two neighbours of each of its corners (most
+        // twice over: an edge has two triangles); count, place, then sort
+        // and drop the repeats per vertex.
+        let mut start = vec![0usize; n + 1];
+        for t in &mesh.triangles {
+            for &v in t {
+                start[v as usize + 1] += 2;
+            }
+        }
+        for i in 0..n {
+            start[i + 1] += start[i];
+        }
+        let mut flat = vec![0u32; start[n]];
+        let mut cursor = start[..n].to_vec();
+        for t in &mesh.triangles {
+            for e in 0..3 {
+                let v = t[e] as usize;
+                flat[cursor[v]] = t[(e + 1) % 3];
+                flat[cursor[v] + 1] = t[(e + 2) % 3];
+                cursor[v] += 2;
+            }
+        }
+        let mut rows: Vec<&mut [u32]> = Vec::with_capacity(n);
+        let mut rest = flat.as_mut_slice();
+        for i in 0..n {
+            let (row, tail) = rest.split_at_mut(start[i + 1] - start[i]);
+            rows.push(row);
+            rest = tail;
+        }
+        let lengths: Vec<usize> = rows
+            .into_par_iter()
+            .map(|row| {
+                row.sort_unstable();
+                let mut kept = 0;
+                for k in 0..row.len() {
+                    if k == 0 || row[k] != row[kept - 1] {
+                        row[kept] = row[k];
+                        kept += 1;
+                    }
+                }
+                kept
+            })
+            .collect();
+        // Close the gaps the repeats left.
+        let mut write = 0;
+        for i in 0..n {
+            let read = start[i];
+            flat.copy_within(read..read + lengths[i], write);
+            start[i] = write;
+            write += lengths[i];
+        }
+        start[n] = write;
+        flat.truncate(write);
+        Self { start, flat }
+    }
+
+    fn of_vertex(&self, i: usize) -> &[u32] {
+        &self.flat[self.start[i]..self.start[i + 1]]
     }
 }
 
@@ -931,5 +997,45 @@ mod tests {
         mesh.smooth(10);
         assert!((mesh.volume() / before - 1.0).abs() < 0.02);
         assert!(mesh.is_closed_and_oriented());
+    }
+
+    /// The compressed neighbour rows and parallel passes give the bits of
+    /// the plain definition: each vertex moved towards the mean of its
+    /// distinct neighbours, in ascending order, from the previous pass.
+    #[test]
+    fn smoothing_is_the_plain_taubin_definition_on_any_thread_count() {
+        let (values, grid) = sphere(24, 8.0);
+        let binary: Vec<f32> = values
+            .iter()
+            .map(|&v| if v > 0.0 { 1.0 } else { 0.0 })
+            .collect();
+        let mesh = marching_cubes(&binary, &grid, 0.5);
+        let mut sets = vec![std::collections::BTreeSet::new(); mesh.vertices.len()];
+        for t in &mesh.triangles {
+            for e in 0..3 {
+                let (a, b) = (t[e], t[(e + 1) % 3]);
+                sets[a as usize].insert(b);
+                sets[b as usize].insert(a);
+            }
+        }
+        let mut expected = mesh.vertices.clone();
+        for _ in 0..3 {
+            for factor in [0.5f32, -0.53] {
+                let current = expected.clone();
+                for (i, v) in expected.iter_mut().enumerate() {
+                    let n = &sets[i];
+                    let mut mean = [0.0f32; 3];
+                    for &j in n {
+                        (0..3).for_each(|x| mean[x] += current[j as usize][x]);
+                    }
+                    (0..3).for_each(|x| v[x] += factor * (mean[x] / n.len() as f32 - v[x]));
+                }
+            }
+        }
+        for threads in [1, 3] {
+            let mut smoothed = mesh.clone();
+            crate::on_threads(threads, || smoothed.smooth(3));
+            assert!(smoothed.vertices == expected, "{threads} threads");
+        }
     }
 }

@@ -30,6 +30,13 @@ pub(crate) const MAX_ITERATIONS: usize = 200;
 /// below it, steps are watched for the rounding floor.
 pub(crate) const STEP_TOLERANCE: f64 = 1e-9;
 
+/// Where inner corner `k` of a board with `cols` inner corners per row lies
+/// on the board (mm, z = 0): the origin at the first corner, x along a row,
+/// in the order [`find_chessboard`](super::find_chessboard) returns them.
+pub fn board_corner_mm(k: usize, cols: usize, square_mm: f64) -> Point2<f64> {
+    Point2::new((k % cols) as f64 * square_mm, (k / cols) as f64 * square_mm)
+}
+
 /// Names of the distortion coefficients, in OpenCV order.
 pub const DISTORTION_NAMES: [&str; 5] = ["k1", "k2", "p1", "p2", "k3"];
 

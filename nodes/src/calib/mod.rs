@@ -16,7 +16,8 @@ mod views;
 mod zhang;
 
 pub use camera_calibration::{
-    BoardView, CameraCalibration, DISTORTION_NAMES, calibrate_camera, rotation_error_deg,
+    BoardView, CameraCalibration, DISTORTION_NAMES, board_corner_mm, calibrate_camera,
+    rotation_error_deg,
 };
 pub use detect::{Refusal, find_chessboard};
 pub use homography::homography;

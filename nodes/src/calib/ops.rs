@@ -218,14 +218,14 @@ impl Op for FindChessboardOp {
             let mut data = Vec::new();
             for (view, corners, w, h) in found {
                 for (k, c) in corners.iter().enumerate() {
-                    let (bx, by) = ((k % cols) as f64 * square, (k / cols) as f64 * square);
+                    let b = board_corner_mm(k, cols, square);
                     data.extend([
                         *view as f64,
                         k as f64,
                         c.x,
                         c.y,
-                        bx,
-                        by,
+                        b.x,
+                        b.y,
                         *w as f64,
                         *h as f64,
                     ]);

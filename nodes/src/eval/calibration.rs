@@ -62,11 +62,8 @@ pub fn compare_calibration(
         for pair in &truth.calibration {
             let pose = isometry_from_matrix(&pair.board_to_left_camera);
             for k in 0..cols * rows {
-                let b = Point3::new(
-                    (k % cols) as f64 * truth.chessboard.square_mm,
-                    (k / cols) as f64 * truth.chessboard.square_mm,
-                    0.0,
-                );
+                let b = crate::calib::board_corner_mm(k, cols, truth.chessboard.square_mm);
+                let b = Point3::new(b.x, b.y, 0.0);
                 let (pl, pr) = (
                     tl.project(&(pose * b)),
                     tr.project(&(true_rig * (pose * b))),

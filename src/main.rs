@@ -179,6 +179,19 @@ fn quiet_on_broken_pipe() {
     }
 }
 
+/// The folder a run or sweep writes into: `--out`, or out/NAME; refused
+/// when it is a file.
+fn out_folder(out: Option<PathBuf>, name: &str) -> anyhow::Result<PathBuf> {
+    let dir = out.unwrap_or_else(|| Path::new("out").join(folder_name(name)));
+    if dir.exists() && !dir.is_dir() {
+        anyhow::bail!(
+            "--out {}: is a file, not a folder; give a folder for the report and files",
+            dir.display()
+        );
+    }
+    Ok(dir)
+}
+
 fn execute(cli: Cli, registry: &Registry) -> anyhow::Result<ExitCode> {
     match cli.command {
         Command::Run {
@@ -193,13 +206,7 @@ fn execute(cli: Cli, registry: &Registry) -> anyhow::Result<ExitCode> {
                 },
         } => {
             let valid = load_graph(&graph, &edit.sets, registry)?;
-            let out_dir = out.unwrap_or_else(|| Path::new("out").join(folder_name(&valid.name)));
-            if out_dir.exists() && !out_dir.is_dir() {
-                anyhow::bail!(
-                    "--out {}: is a file, not a folder; give a folder for the run's report and files",
-                    out_dir.display()
-                );
-            }
+            let out_dir = out_folder(out, &valid.name)?;
             let cache = if no_cache {
                 None
             } else {
@@ -241,10 +248,7 @@ fn execute(cli: Cli, registry: &Registry) -> anyhow::Result<ExitCode> {
             }
             let plan = fusegraph_engine::sweep::load_sweep(&sweep.expect("clap requires it"))?;
             let graphs = fusegraph_engine::sweep::validate_variants(&plan, registry)?;
-            let out_dir = out.unwrap_or_else(|| Path::new("out").join(folder_name(&plan.name)));
-            if out_dir.exists() && !out_dir.is_dir() {
-                anyhow::bail!("--out {}: is a file, not a folder", out_dir.display());
-            }
+            let out_dir = out_folder(out, &plan.name)?;
             let options = fusegraph_engine::sweep::SweepOptions {
                 out_dir: out_dir.clone(),
                 cache: (!no_cache).then(|| {

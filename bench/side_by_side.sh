@@ -33,7 +33,9 @@ for round in $(seq "$rounds"); do
   "$py" "$peers" --repeat 3 icp "$work/icp/source.ply" "$work/icp/target.ply" --iters 30
   "$py" "$peers" --repeat 3 icp "$work/icp/source.ply" "$work/icp/target.ply" --iters 30 --plane
   RAYON_NUM_THREADS=1 "$fg" bench stereo-calibration "$work/phantom/calib" --repeat 10 --out "$work/calib" | tail -2 | head -1 | sed 's/^/ours 1 thread: /'
-  "$py" bench/opencv_stereo_calibrate.py "$work/calib/pairs.csv" --repeat 10 --threads 1 | tail -1 | sed 's/^/opencv 1 thread: /'
+  "$py" bench/opencv_calibrate.py "$work/calib/pairs.csv" --repeat 10 --threads 1 | tail -1 | sed 's/^/opencv 1 thread: /'
   "$fg" bench stereo-calibration "$work/phantom/calib" --repeat 10 --out "$work/calib" | tail -2 | head -1 | sed 's/^/ours: /'
-  "$py" bench/opencv_stereo_calibrate.py "$work/calib/pairs.csv" --repeat 10 | tail -1 | sed 's/^/opencv: /'
+  "$py" bench/opencv_calibrate.py "$work/calib/pairs.csv" --repeat 10 | tail -1 | sed 's/^/opencv: /'
+  "$fg" bench camera-calibration ../shared/data/chessboard_mono --repeat 10 --out "$work/mono" | tail -2 | head -1 | sed 's/^/ours, real photos: /'
+  "$py" bench/opencv_calibrate.py "$work/mono/views.csv" --repeat 10 | tail -1 | sed 's/^/opencv, real photos: /'
 done

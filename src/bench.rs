@@ -128,10 +128,33 @@ pub enum BenchCommand {
         #[arg(long)]
         out: Option<std::path::PathBuf>,
     },
+    /// One camera's calibration (calib.calibrate_camera's solver with its
+    /// defaults) on the boards found in its photos, e.g.
+    /// ../shared/data/chessboard_mono; best of --repeat. --out writes
+    /// views.csv for bench/opencv_calibrate.py.
+    CameraCalibration {
+        /// Folder of the photos.
+        dir: std::path::PathBuf,
+        /// File names of the photos.
+        #[arg(long, default_value = "*.jpg")]
+        glob: String,
+        /// Inner corners per row and per column, e.g. 9x6.
+        #[arg(long, default_value = "9x6")]
+        pattern: String,
+        /// Side of a square, mm.
+        #[arg(long, default_value_t = 25.0)]
+        square_mm: f64,
+        /// Repetitions; the best time is reported.
+        #[arg(long, default_value_t = 5, value_parser = count::<1000>)]
+        repeat: usize,
+        /// Folder for views.csv.
+        #[arg(long)]
+        out: Option<std::path::PathBuf>,
+    },
     /// Stereo calibration (calib.stereo_calibrate's solver with its defaults:
     /// both cameras alone, then together) on the boards found in a folder of
     /// chessboard pairs, e.g. `fusegraph phantom`'s calib folder; best of
-    /// --repeat. --out writes pairs.csv for bench/opencv_stereo_calibrate.py;
+    /// --repeat. --out writes pairs.csv for bench/opencv_calibrate.py;
     /// --pairs times a given corner set instead.
     StereoCalibration {
         /// Folder of the photos.
@@ -159,6 +182,15 @@ pub enum BenchCommand {
         #[arg(long)]
         out: Option<std::path::PathBuf>,
     },
+}
+
+/// A square size given with --square-mm, mm.
+fn positive_square(square_mm: f64) -> anyhow::Result<f64> {
+    anyhow::ensure!(
+        square_mm.is_finite() && square_mm > 0.0,
+        "--square-mm {square_mm}: give a positive size"
+    );
+    Ok(square_mm)
 }
 
 /// A board pattern given as COLSxROWS (inner corners), e.g. 9x6.
@@ -272,6 +304,21 @@ pub fn run_bench(what: BenchCommand, registry: &Registry) -> anyhow::Result<()> 
             repeat,
             out.as_deref(),
         ),
+        BenchCommand::CameraCalibration {
+            dir,
+            glob,
+            pattern,
+            square_mm,
+            repeat,
+            out,
+        } => {
+            let setup = crate::bench_calibration::Setup {
+                dir: &dir,
+                pattern: board_pattern(&pattern)?,
+                square_mm: positive_square(square_mm)?,
+            };
+            crate::bench_calibration::run_camera(&setup, &glob, repeat, out.as_deref())
+        }
         BenchCommand::StereoCalibration {
             dir,
             pairs,
@@ -282,19 +329,15 @@ pub fn run_bench(what: BenchCommand, registry: &Registry) -> anyhow::Result<()> 
             repeat,
             out,
         } => {
-            anyhow::ensure!(
-                square_mm.is_finite() && square_mm > 0.0,
-                "--square-mm {square_mm}: give a positive size"
-            );
             let pairing = match (pairs, dir) {
                 (Some(file), _) => crate::bench_calibration::read_pairs(&file)?,
                 (None, Some(dir)) => {
-                    crate::bench_calibration::find_pairs(&crate::bench_calibration::Setup {
+                    let setup = crate::bench_calibration::Setup {
                         dir: &dir,
-                        globs: [&left, &right],
                         pattern: board_pattern(&pattern)?,
-                        square_mm,
-                    })?
+                        square_mm: positive_square(square_mm)?,
+                    };
+                    crate::bench_calibration::find_pairs(&setup, [&left, &right])?
                 }
                 (None, None) => anyhow::bail!("give a folder of photos or --pairs FILE"),
             };

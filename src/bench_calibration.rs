@@ -1,25 +1,25 @@
-//! `fusegraph bench stereo-calibration`: `calib.stereo_calibrate`'s solver
-//! (both single-camera calibrations, then Levenberg-Marquardt over both
-//! cameras, the rig and every pose) timed on the corners our detector finds in
-//! a folder of chessboard pairs, best of N. Writes the pairs' corners as CSV so
-//! that `bench/opencv_stereo_calibrate.py` times OpenCV's `calibrateCamera`
-//! twice and `stereoCalibrate` on exactly the same corners; `--pairs` reads
-//! such a file back (or one of other corners) instead of finding the boards.
+//! `fusegraph bench camera-calibration` and `stereo-calibration`: the solvers
+//! of `calib.calibrate_camera` (one camera) and `calib.stereo_calibrate` (both
+//! cameras alone, then Levenberg-Marquardt over both cameras, the rig and
+//! every pose), timed best of N on the corners our detector finds in a folder
+//! of chessboard photos. They write those corners as CSV so that
+//! `bench/opencv_calibrate.py` times OpenCV's `calibrateCamera` (and
+//! `stereoCalibrate`) on exactly the same corners; `--pairs` reads a pairs
+//! file back (or one of other corners) instead of finding the boards.
 
 use fusegraph_nodes::calib::{
-    BoardView, Pairing, PhotoRecord, Side, calibrate_stereo, find_chessboard, numbered_photos,
-    pair_views,
+    BoardView, Pairing, PhotoRecord, Side, board_corner_mm, calibrate_camera, calibrate_stereo,
+    find_chessboard, numbered_photos, pair_views, usual_size,
 };
+use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
 use std::time::Instant;
 
-/// What the bench is given: the folder, the two globs, the board.
+/// What the bench is given: the folder and the board.
 pub struct Setup<'a> {
     /// Folder of the photos.
     pub dir: &'a Path,
-    /// File names of the left and the right photos.
-    pub globs: [&'a str; 2],
     /// Inner corners per row and per column.
     pub pattern: (usize, usize),
     /// Side of a square, mm.
@@ -36,37 +36,103 @@ fn side(setup: &Setup, glob: &str) -> anyhow::Result<Side> {
         setup.dir.display()
     );
     let (cols, rows) = setup.pattern;
-    let mut side = Side {
-        photos: Some(Default::default()),
-        ..Default::default()
-    };
+    let mut boards = BTreeMap::new();
+    let mut records = BTreeMap::new();
     for (&view, file) in &photos.files {
         let img = fusegraph_nodes::io::load_grey(file)?;
         let size = (img.width, img.height);
         let refusal = match find_chessboard(&img.levels, img.width, img.height, cols, rows) {
-            Ok(corners) => {
-                let board_mm = (0..corners.len())
-                    .map(|k| {
-                        nalgebra::Point2::new(
-                            (k % cols) as f64 * setup.square_mm,
-                            (k / cols) as f64 * setup.square_mm,
-                        )
-                    })
+            Ok(image_px) => {
+                let board_mm = (0..image_px.len())
+                    .map(|k| board_corner_mm(k, cols, setup.square_mm))
                     .collect();
-                let view_boards = BoardView {
-                    board_mm,
-                    image_px: corners,
-                };
-                side.boards.insert(view, (view_boards, size));
+                boards.insert(view, (BoardView { board_mm, image_px }, size));
                 PhotoRecord::FOUND
             }
             Err(why) => why.code(),
         };
-        if let Some(records) = side.photos.as_mut() {
-            records.insert(view, PhotoRecord { refusal, size });
-        }
+        records.insert(view, PhotoRecord { refusal, size });
     }
-    Ok(side)
+    Ok(Side {
+        boards,
+        photos: Some(records),
+    })
+}
+
+/// The header of one camera's views' CSV.
+const VIEWS_HEADER: &str = "view,corner,board_x_mm,board_y_mm,x_px,y_px,width_px,height_px";
+
+/// Finds one camera's boards in the photos `glob` names (not timed), keeps
+/// those of the usual size as `calib.calibrate_camera` does, and times its
+/// solver with the op's defaults (k1 k2 p1 p2 free); prints the results and
+/// writes `views.csv` under `out` if given.
+pub fn run_camera(
+    setup: &Setup,
+    glob: &str,
+    repeat: usize,
+    out: Option<&Path>,
+) -> anyhow::Result<()> {
+    let found = side(setup, glob)?.boards;
+    let sizes = found.iter().map(|(v, b)| (*v, b.1)).collect();
+    let ((width, height), odd) = usual_size(&sizes);
+    let views: Vec<(u32, BoardView)> = found
+        .into_iter()
+        .filter(|(v, _)| !odd.contains(v))
+        .map(|(v, b)| (v, b.0))
+        .collect();
+    let boards: Vec<BoardView> = views.iter().map(|v| v.1.clone()).collect();
+    let free = [true, true, true, true, false];
+    let mut best = f64::MAX;
+    let mut last = None;
+    for _ in 0..repeat.max(1) {
+        let t = Instant::now();
+        let c = calibrate_camera(&boards, width, height, free).map_err(anyhow::Error::msg)?;
+        best = best.min(t.elapsed().as_secs_f64());
+        last = Some(c);
+    }
+    let c = last.expect("ran at least once");
+    let k = &c.camera;
+    println!(
+        "{} views of {width} x {height} px ({} of another size left out), k1 k2 p1 p2 free: rms {:.6} px; \
+         fx {:.4} fy {:.4} cx {:.4} cy {:.4}; k1 {:.6} k2 {:.6}",
+        boards.len(),
+        odd.len(),
+        c.rms_px,
+        k.fx,
+        k.fy,
+        k.cx,
+        k.cy,
+        k.distortion[0],
+        k.distortion[1]
+    );
+    println!(
+        "camera calibration, best of {repeat}: {:.1} ms ({} iterations)",
+        best * 1e3,
+        c.iterations
+    );
+    if let Some(out) = out {
+        let mut csv = format!("{VIEWS_HEADER}\n");
+        for (view, b) in &views {
+            for (k, (m, p)) in b.board_mm.iter().zip(&b.image_px).enumerate() {
+                let _ = writeln!(
+                    csv,
+                    "{view},{k},{},{},{:.9},{:.9},{width},{height}",
+                    m.x, m.y, p.x, p.y
+                );
+            }
+        }
+        write_csv(out, "views.csv", &csv)?;
+    }
+    Ok(())
+}
+
+/// Writes `csv` as `out/name` and says where.
+fn write_csv(out: &Path, name: &str, csv: &str) -> anyhow::Result<()> {
+    std::fs::create_dir_all(out)?;
+    let path = out.join(name);
+    std::fs::write(&path, csv).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    println!("{}: {}", name.trim_end_matches(".csv"), path.display());
+    Ok(())
 }
 
 /// The header of the pairs' CSV.
@@ -162,10 +228,11 @@ fn pairs_csv(
     csv
 }
 
-/// Finds the boards (not timed).
-pub fn find_pairs(setup: &Setup) -> anyhow::Result<Pairing> {
-    let left = side(setup, setup.globs[0])?;
-    let right = side(setup, setup.globs[1])?;
+/// Finds the boards in the left and the right photos `globs` name (not
+/// timed) and pairs them by view number.
+pub fn find_pairs(setup: &Setup, globs: [&str; 2]) -> anyhow::Result<Pairing> {
+    let left = side(setup, globs[0])?;
+    let right = side(setup, globs[1])?;
     pair_views(&left, &right, 3).map_err(anyhow::Error::msg)
 }
 
@@ -203,14 +270,8 @@ pub fn run(pairing: &Pairing, repeat: usize, out: Option<&Path>) -> anyhow::Resu
         best * 1e3
     );
     if let Some(out) = out {
-        std::fs::create_dir_all(out)?;
-        let path = out.join("pairs.csv");
-        std::fs::write(
-            &path,
-            pairs_csv(&pairing.views, &pairing.pairs, pairing.sizes),
-        )
-        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        println!("pairs: {}", path.display());
+        let csv = pairs_csv(&pairing.views, &pairing.pairs, pairing.sizes);
+        write_csv(out, "pairs.csv", &csv)?;
     }
     Ok(())
 }

@@ -249,3 +249,27 @@ fn the_calibration_bench_reads_a_corner_set() {
         stderr(&o)
     );
 }
+
+/// `bench camera-calibration` on the two real photos kept in tests/data:
+/// both boards are found, and two views are refused as too few.
+#[test]
+fn the_camera_calibration_bench_refuses_too_few_views() {
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/chessboard");
+    let t = tempfile::tempdir().unwrap();
+    let o = fusegraph(
+        &[
+            "bench",
+            "camera-calibration",
+            data.to_str().unwrap(),
+            "--repeat",
+            "1",
+        ],
+        t.path(),
+    );
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("2 usable views; calibration needs at least 3"),
+        "{}",
+        stderr(&o)
+    );
+}

@@ -138,12 +138,8 @@ pub enum BenchCommand {
         /// File names of the photos.
         #[arg(long, default_value = "*.jpg")]
         glob: String,
-        /// Inner corners per row and per column, e.g. 9x6.
-        #[arg(long, default_value = "9x6")]
-        pattern: String,
-        /// Side of a square, mm.
-        #[arg(long, default_value_t = 25.0)]
-        square_mm: f64,
+        #[command(flatten)]
+        board: BoardArgs,
         /// Repetitions; the best time is reported.
         #[arg(long, default_value_t = 5, value_parser = count::<1000>)]
         repeat: usize,
@@ -169,12 +165,8 @@ pub enum BenchCommand {
         /// File names of the right photos.
         #[arg(long, default_value = "right_*.png")]
         right: String,
-        /// Inner corners per row and per column, e.g. 9x6.
-        #[arg(long, default_value = "9x6")]
-        pattern: String,
-        /// Side of a square, mm.
-        #[arg(long, default_value_t = 25.0)]
-        square_mm: f64,
+        #[command(flatten)]
+        board: BoardArgs,
         /// Repetitions; the best time is reported.
         #[arg(long, default_value_t = 5, value_parser = count::<1000>)]
         repeat: usize,
@@ -184,13 +176,34 @@ pub enum BenchCommand {
     },
 }
 
-/// A square size given with --square-mm, mm.
-fn positive_square(square_mm: f64) -> anyhow::Result<f64> {
-    anyhow::ensure!(
-        square_mm.is_finite() && square_mm > 0.0,
-        "--square-mm {square_mm}: give a positive size"
-    );
-    Ok(square_mm)
+/// The calibration board, as the calibration benches take it.
+#[derive(clap::Args)]
+pub struct BoardArgs {
+    /// Inner corners per row and per column, e.g. 9x6.
+    #[arg(long, default_value = "9x6")]
+    pattern: String,
+    /// Side of a square, mm.
+    #[arg(long, default_value_t = 25.0)]
+    square_mm: f64,
+}
+
+impl BoardArgs {
+    /// The bench's setup for the photos in `dir`.
+    fn setup<'a>(
+        &self,
+        dir: &'a std::path::Path,
+    ) -> anyhow::Result<crate::bench_calibration::Setup<'a>> {
+        let square_mm = self.square_mm;
+        anyhow::ensure!(
+            square_mm.is_finite() && square_mm > 0.0,
+            "--square-mm {square_mm}: give a positive size"
+        );
+        Ok(crate::bench_calibration::Setup {
+            dir,
+            pattern: board_pattern(&self.pattern)?,
+            square_mm,
+        })
+    }
 }
 
 /// A board pattern given as COLSxROWS (inner corners), e.g. 9x6.
@@ -307,37 +320,25 @@ pub fn run_bench(what: BenchCommand, registry: &Registry) -> anyhow::Result<()> 
         BenchCommand::CameraCalibration {
             dir,
             glob,
-            pattern,
-            square_mm,
+            board,
             repeat,
             out,
         } => {
-            let setup = crate::bench_calibration::Setup {
-                dir: &dir,
-                pattern: board_pattern(&pattern)?,
-                square_mm: positive_square(square_mm)?,
-            };
-            crate::bench_calibration::run_camera(&setup, &glob, repeat, out.as_deref())
+            crate::bench_calibration::run_camera(&board.setup(&dir)?, &glob, repeat, out.as_deref())
         }
         BenchCommand::StereoCalibration {
             dir,
             pairs,
             left,
             right,
-            pattern,
-            square_mm,
+            board,
             repeat,
             out,
         } => {
             let pairing = match (pairs, dir) {
                 (Some(file), _) => crate::bench_calibration::read_pairs(&file)?,
                 (None, Some(dir)) => {
-                    let setup = crate::bench_calibration::Setup {
-                        dir: &dir,
-                        pattern: board_pattern(&pattern)?,
-                        square_mm: positive_square(square_mm)?,
-                    };
-                    crate::bench_calibration::find_pairs(&setup, [&left, &right])?
+                    crate::bench_calibration::find_pairs(&board.setup(&dir)?, [&left, &right])?
                 }
                 (None, None) => anyhow::bail!("give a folder of photos or --pairs FILE"),
             };

@@ -27,6 +27,7 @@ pub mod report_html;
 pub mod schedule;
 pub mod session;
 pub mod sweep;
+pub mod typed;
 pub mod validate;
 pub mod value;
 pub mod workdir;

@@ -220,6 +220,7 @@ struct ParamDecl {
     choices: Vec<String>,
     #[serde(default)]
     lengths: Vec<usize>,
+    length_multiple_of: Option<usize>,
 }
 
 /// An engine value type that the ABI carries.
@@ -272,7 +273,11 @@ impl OpDecl {
                 min: p.min,
                 max: p.max,
                 choices: p.choices.clone(),
-                length: (!p.lengths.is_empty()).then(|| ListLength::OneOf(p.lengths.clone())),
+                length: if p.lengths.is_empty() {
+                    p.length_multiple_of.map(ListLength::MultipleOf)
+                } else {
+                    Some(ListLength::OneOf(p.lengths.clone()))
+                },
                 doc: p.doc.clone(),
             };
             if let Some(d) = &p.default {

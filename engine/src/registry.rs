@@ -44,6 +44,13 @@ impl Registry {
         Ok(())
     }
 
+    /// Adds a node type written in the typed form (see [`crate::typed`]).
+    pub fn add<T: crate::typed::RunOp>(&mut self) -> Result<(), RegisterError> {
+        let op = crate::typed::Typed::<T>::new()
+            .map_err(|why| RegisterError::InvalidSpec(T::NAME.into(), why))?;
+        self.register(Arc::new(op))
+    }
+
     /// Records that the plugin at `file` (canonical) declared `ops`.
     pub fn add_plugin(&mut self, file: std::path::PathBuf, ops: Vec<String>) {
         self.plugins.insert(file, ops);

@@ -5,7 +5,7 @@ mod components;
 mod intensity;
 mod marching_cubes;
 mod markers;
-mod ops;
+pub mod ops;
 mod self_intersection;
 
 pub use components::{Connectivity, label_components};
@@ -16,15 +16,14 @@ pub use self_intersection::{self_intersections, triangle_distance};
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;
-use std::sync::Arc;
 
 /// Registers the `mri.*` ops.
 pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
-    registry.register(Arc::new(ops::StretchOp::new()))?;
-    registry.register(Arc::new(ops::OtsuOp::new()))?;
-    registry.register(Arc::new(ops::IsosurfaceOp::new()))?;
-    registry.register(Arc::new(ops::ComponentsOp::new()))?;
-    registry.register(Arc::new(ops::SelectMarkersOp::new()))?;
-    registry.register(Arc::new(ops::CentroidsOp::new()))?;
+    registry.add::<ops::BrightStretch>()?;
+    registry.add::<ops::Otsu>()?;
+    registry.add::<ops::Isosurface>()?;
+    registry.add::<ops::Components>()?;
+    registry.add::<ops::SelectMarkers>()?;
+    registry.add::<ops::Centroids>()?;
     Ok(())
 }

@@ -15,7 +15,7 @@
 //! Parameter keys: `name`, `kind` (`int`, `float`, `bool`, `string`,
 //! `int_list`, `float_list`), `default` (absent: the graph must set it),
 //! `unit`, `doc`, `min`, `max`, `choices` (strings), `lengths` (allowed list
-//! lengths). Hosts ignore keys they do not know, so new optional keys do not
+//! lengths), `length_multiple_of` (a list of flattened tuples). Hosts ignore keys they do not know, so new optional keys do not
 //! change the ABI version.
 
 use std::fmt::Write;
@@ -32,6 +32,7 @@ pub struct Param {
     max: Option<f64>,
     choices: Vec<String>,
     lengths: Vec<usize>,
+    length_multiple_of: Option<usize>,
 }
 
 impl Param {
@@ -52,7 +53,39 @@ impl Param {
             max: None,
             choices: Vec::new(),
             lengths: Vec::new(),
+            length_multiple_of: None,
         }
+    }
+
+    /// A parameter of `kind` (a kind name of the TOML declaration) without a
+    /// default yet (for the typed form, [`crate::typed_op`]).
+    pub(crate) fn declared(name: &str, kind: &'static str, unit: &str, doc: &str) -> Param {
+        Param::new(name, kind, None, unit, doc)
+    }
+
+    /// Sets the default, as TOML text.
+    pub(crate) fn with_default(mut self, toml: String) -> Param {
+        self.default = Some(toml);
+        self
+    }
+
+    /// Sets either bound of a number.
+    pub(crate) fn bounds(mut self, min: Option<f64>, max: Option<f64>) -> Param {
+        self.min = min;
+        self.max = max;
+        self
+    }
+
+    /// Sets the allowed strings.
+    pub(crate) fn with_choices(mut self, choices: Vec<String>) -> Param {
+        self.choices = choices;
+        self
+    }
+
+    /// A list whose length must be a multiple of `k` (flattened tuples).
+    pub fn length_multiple_of(mut self, k: usize) -> Param {
+        self.length_multiple_of = Some(k);
+        self
     }
 
     /// An integer with a default.
@@ -156,6 +189,9 @@ impl Param {
         if !self.lengths.is_empty() {
             let l: Vec<String> = self.lengths.iter().map(|l| l.to_string()).collect();
             let _ = write!(out, ", lengths = [{}]", l.join(", "));
+        }
+        if let Some(k) = self.length_multiple_of {
+            let _ = write!(out, ", length_multiple_of = {k}");
         }
         out.push_str(" }");
     }
@@ -282,7 +318,7 @@ impl OpDecl {
 }
 
 /// A TOML basic string.
-fn toml_string(s: &str) -> String {
+pub(crate) fn toml_string(s: &str) -> String {
     let mut out = String::with_capacity(s.len() + 2);
     out.push('"');
     for c in s.chars() {
@@ -304,7 +340,7 @@ fn toml_string(s: &str) -> String {
 
 /// A TOML float (always with a point or exponent, `nan` and `inf` spelled as
 /// TOML spells them).
-fn toml_float(v: f64) -> String {
+pub(crate) fn toml_float(v: f64) -> String {
     if v.is_nan() {
         "nan".into()
     } else if v.is_infinite() {

@@ -31,10 +31,21 @@
 pub mod abi;
 pub mod declare;
 mod output;
+pub mod typed;
+mod typed_op;
 mod view;
 
 pub use declare::{OpDecl, Param};
+
+/// The derives of the typed declaration form (feature `derive`):
+/// `#[derive(Op)]`, `#[derive(Params)]`, `#[derive(Inputs)]`,
+/// `#[derive(Outputs)]` and `#[derive(Choice)]` (see [`typed`]).
+#[cfg(feature = "derive")]
+pub mod derive {
+    pub use fusegraph_derive::{Choice, Inputs, Op, Outputs, Params};
+}
 pub use output::Outputs;
+pub use typed_op::{DisparityMap, DisparityView, ImageU8, Typed, TypedPluginOp};
 pub use view::{ImageView, Inputs, Params, PixelsView, TableView};
 
 use abi::{FgInput, FgParam, FgPlugin, FgResult, FgStr};

@@ -78,6 +78,11 @@ impl<'a> Inputs<'a> {
         Inputs { raw }
     }
 
+    /// Whether a value is on `port`.
+    pub fn is_connected(&self, port: &str) -> bool {
+        self.find(port).is_some()
+    }
+
     fn find(&self, port: &str) -> Option<&'a FgArray> {
         self.raw
             .iter()
@@ -192,6 +197,15 @@ impl<'a> Params<'a> {
     /// `raw` must be the host's parameters of this call.
     pub unsafe fn new(raw: &'a [FgParam]) -> Params<'a> {
         Params { raw }
+    }
+
+    /// The [`param_kind`] code of parameter `name`, `None` when not passed.
+    pub fn kind(&self, name: &str) -> Option<u32> {
+        self.raw
+            .iter()
+            // SAFETY: the host's names, valid for the call.
+            .find(|p| unsafe { p.name.as_str() } == Some(name))
+            .map(|p| p.kind)
     }
 
     fn find(&self, name: &str, kind: u32) -> Result<&'a FgParam, String> {

@@ -1,0 +1,266 @@
+//! Ops in the typed declaration form: a struct whose fields are the op's
+//! parameters (`#[derive(Op)]`), an inputs struct and an outputs struct
+//! (`#[derive(Inputs)]`, `#[derive(Outputs)]`), and [`RunOp::run`] on them.
+//! [`Typed`] adapts such an op to the engine's [`Op`]: its [`OpSpec`] is
+//! derived from the declarations, and its `run` fills the structs from the
+//! graph's values. The declaration model and derives are shared with plugins
+//! (`fusegraph_plugin_api::typed`), so built-in and plugin ops are written in
+//! one form.
+//!
+//! ```
+//! use fusegraph_engine::typed::prelude::*;
+//! use fusegraph_engine::value::Volume;
+//!
+//! /// Multiplies every voxel by a factor
+//! #[derive(Op)]
+//! #[op(name = "demo.scale", version = 1)]
+//! pub struct Scale {
+//!     /// Factor applied to every voxel
+//!     #[param(default = 2.0, min = 0.0)]
+//!     pub factor: f64,
+//! }
+//!
+//! #[derive(Inputs)]
+//! pub struct ScaleInputs {
+//!     /// Any volume
+//!     pub volume: Arc<Volume>,
+//! }
+//!
+//! #[derive(Outputs)]
+//! pub struct ScaleOutputs {
+//!     /// The scaled volume, same grid
+//!     pub volume: Volume,
+//! }
+//!
+//! impl RunOp for Scale {
+//!     type Inputs = ScaleInputs;
+//!     type Outputs = ScaleOutputs;
+//!     fn run(&self, inputs: ScaleInputs, _: &mut RunCtx) -> Result<ScaleOutputs, OpError> {
+//!         let data = inputs.volume.data.iter().map(|v| v * self.factor as f32).collect();
+//!         let volume = Volume::new(inputs.volume.grid.clone(), data)
+//!             .map_err(|e| OpError::invalid(e.0))?;
+//!         Ok(ScaleOutputs { volume })
+//!     }
+//! }
+//!
+//! let mut registry = fusegraph_engine::Registry::new();
+//! registry.add::<Scale>().unwrap();
+//! let spec = registry.get("demo.scale").unwrap().spec();
+//! assert_eq!(spec.params[0].name, "factor");
+//! assert_eq!(spec.params[0].min, Some(0.0));
+//! ```
+
+use crate::op::{Inputs, Op, OpError, OpSpec, Outputs, PortSpec, RunCtx};
+use crate::param::{ListLength, ParamError, ParamKind, ParamSpec, ParamValue, Params};
+use crate::value::{FromValue, Value, ValueType};
+use fusegraph_plugin_api::typed::{
+    self as decl, InputPort, InputSet, InputSource, OpInfo, OutputPort, OutputSet, ParamRef,
+    ParamSet, ParamSource,
+};
+use std::marker::PhantomData;
+use std::sync::Arc;
+
+pub use fusegraph_plugin_api::typed as declaration;
+
+/// What an op file imports: the derives, the traits they implement and the
+/// types `run` uses.
+pub mod prelude {
+    pub use super::RunOp;
+    pub use crate::op::{OpError, RunCtx};
+    pub use fusegraph_plugin_api::derive::{Choice, Inputs, Op, Outputs, Params};
+    pub use std::sync::Arc;
+}
+
+/// An op in the typed form: `Self` holds its parameters (filled from the
+/// graph), `run` gets its inputs and returns its outputs.
+pub trait RunOp: OpInfo + ParamSet + Send + Sync + 'static {
+    /// The input ports.
+    type Inputs: for<'a> InputSet<'a, Inputs>;
+    /// The output ports.
+    type Outputs: OutputSet<Outputs>;
+    /// Computes the outputs (see [`Op`] for what `run` may and must not do).
+    fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError>;
+}
+
+/// A typed op as the engine's [`Op`].
+pub struct Typed<T> {
+    spec: OpSpec,
+    op: PhantomData<fn() -> T>,
+}
+
+impl<T: RunOp> Typed<T> {
+    /// The adapter, with the spec derived from `T`'s declarations; an
+    /// unknown port type name is an error.
+    pub fn new() -> Result<Self, String> {
+        Ok(Typed {
+            spec: spec_of::<T>()?,
+            op: PhantomData,
+        })
+    }
+}
+
+impl<T: RunOp> Op for Typed<T> {
+    fn spec(&self) -> &OpSpec {
+        &self.spec
+    }
+
+    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
+        let op = T::from_params(params).map_err(|p| {
+            OpError::Param(ParamError {
+                name: p.name,
+                problem: p.problem,
+            })
+        })?;
+        let inputs = <T::Inputs as InputSet<'_, Inputs>>::from_inputs(inputs)
+            .map_err(|p| OpError::Input(p.port, p.problem))?;
+        let mut outputs = Outputs::new();
+        op.run(inputs, ctx)?.put_all(&mut outputs);
+        Ok(outputs)
+    }
+}
+
+/// The engine's spec of a typed op.
+pub fn spec_of<T: RunOp>() -> Result<OpSpec, String> {
+    let ports = |decls: Vec<decl::PortDecl>| -> Result<Vec<PortSpec>, String> {
+        decls
+            .into_iter()
+            .map(|p| {
+                let types = p
+                    .types
+                    .iter()
+                    .map(|t| {
+                        ValueType::from_name(t)
+                            .ok_or_else(|| format!("port `{}`: unknown type `{t}`", p.name))
+                    })
+                    .collect::<Result<_, _>>()?;
+                Ok(PortSpec {
+                    name: p.name,
+                    types,
+                    optional: p.optional,
+                    doc: p.doc,
+                })
+            })
+            .collect()
+    };
+    Ok(OpSpec {
+        name: T::NAME.into(),
+        version: T::VERSION,
+        doc: T::DOC.into(),
+        inputs: ports(<T::Inputs as InputSet<'_, Inputs>>::port_decls())?,
+        outputs: ports(<T::Outputs as OutputSet<Outputs>>::port_decls())?,
+        params: T::param_decls().into_iter().map(param_spec).collect(),
+        writes_output: T::WRITES_OUTPUT,
+        origin: None,
+    })
+}
+
+/// The engine's spec of one declared parameter.
+pub fn param_spec(p: decl::ParamDecl) -> ParamSpec {
+    ParamSpec {
+        name: p.name,
+        kind: param_kind(p.kind),
+        default: p.default.map(param_value),
+        unit: p.unit,
+        min: p.min,
+        max: p.max,
+        choices: p.choices,
+        length: p.length.map(|l| match l {
+            decl::ListLength::OneOf(n) => ListLength::OneOf(n),
+            decl::ListLength::MultipleOf(k) => ListLength::MultipleOf(k),
+        }),
+        doc: p.doc,
+    }
+}
+
+fn param_kind(kind: decl::ParamKind) -> ParamKind {
+    match kind {
+        decl::ParamKind::Float => ParamKind::Float,
+        decl::ParamKind::Int => ParamKind::Int,
+        decl::ParamKind::Bool => ParamKind::Bool,
+        decl::ParamKind::String => ParamKind::String,
+        decl::ParamKind::Path => ParamKind::Path,
+        decl::ParamKind::FloatList => ParamKind::FloatList,
+        decl::ParamKind::IntList => ParamKind::IntList,
+        decl::ParamKind::StringList => ParamKind::StringList,
+    }
+}
+
+fn param_value(d: decl::ParamDefault) -> ParamValue {
+    match d {
+        decl::ParamDefault::Float(v) => ParamValue::Float(v),
+        decl::ParamDefault::Int(v) => ParamValue::Int(v),
+        decl::ParamDefault::Bool(v) => ParamValue::Bool(v),
+        decl::ParamDefault::String(v) => ParamValue::String(v),
+        decl::ParamDefault::Path(v) => ParamValue::Path(v),
+        decl::ParamDefault::FloatList(v) => ParamValue::FloatList(v),
+        decl::ParamDefault::IntList(v) => ParamValue::IntList(v),
+        decl::ParamDefault::StringList(v) => ParamValue::StringList(v),
+    }
+}
+
+impl ParamSource for Params {
+    fn param(&self, name: &str) -> Option<ParamRef<'_>> {
+        Some(match self.0.get(name)? {
+            ParamValue::Float(v) => ParamRef::Float(*v),
+            ParamValue::Int(v) => ParamRef::Int(*v),
+            ParamValue::Bool(v) => ParamRef::Bool(*v),
+            ParamValue::String(v) => ParamRef::Str(v),
+            ParamValue::Path(v) => ParamRef::Path(v),
+            ParamValue::FloatList(v) => ParamRef::FloatList(v),
+            ParamValue::IntList(v) => ParamRef::IntList(v),
+            ParamValue::StringList(v) => {
+                ParamRef::StringList(v.iter().map(String::as_str).collect())
+            }
+        })
+    }
+}
+
+impl InputSource for Inputs {
+    fn is_connected(&self, port: &str) -> bool {
+        self.0.contains_key(port)
+    }
+}
+
+/// The value on `port` as `T` (for the value types' [`InputPort`]s).
+pub(crate) fn take_input<T: FromValue>(inputs: &Inputs, port: &str) -> Result<Arc<T>, String> {
+    match inputs.get::<T>(port) {
+        Ok(v) => Ok(v),
+        Err(OpError::Input(_, why)) => Err(why),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
+/// A number on a `Scalar` port.
+impl<'a> InputPort<'a, Inputs> for f64 {
+    fn type_names() -> Vec<&'static str> {
+        vec![ValueType::Scalar.name()]
+    }
+    fn take(source: &'a Inputs, port: &str) -> Result<Self, String> {
+        take_input::<f64>(source, port).map(|v| *v)
+    }
+}
+
+/// A port of several types (give them with `#[input(types(A, B))]`) as the
+/// raw value, matched on by the op.
+impl<'a> InputPort<'a, Inputs> for Value {
+    fn type_names() -> Vec<&'static str> {
+        ValueType::ALL.iter().map(|t| t.name()).collect()
+    }
+    fn take(source: &'a Inputs, port: &str) -> Result<Self, String> {
+        source
+            .value(port)
+            .cloned()
+            .ok_or_else(|| "not connected".into())
+    }
+}
+
+/// An output of whatever type the value has (declared with the type of the
+/// port it stands for by the op's own [`OutputSet`]).
+impl OutputPort<Outputs> for Value {
+    fn type_name() -> &'static str {
+        "Value"
+    }
+    fn put(self, sink: &mut Outputs, port: &str) {
+        sink.0.insert(port.into(), self);
+    }
+}

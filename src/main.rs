@@ -395,7 +395,8 @@ fn parse_shard(s: &str) -> Result<(usize, usize), String> {
 /// Builds and writes the comparison of the sweep folder `dir`; exit 1 when a
 /// variant failed or is missing.
 fn compare_sweep(dir: &Path) -> anyhow::Result<ExitCode> {
-    use fusegraph_engine::sweep::compare::{Status, comparison, write_comparison};
+    use fusegraph_engine::sweep::compare::{Status, comparison};
+    use fusegraph_engine::sweep::write_comparison;
     let c = comparison(dir).map_err(anyhow::Error::msg)?;
     write_comparison(&c, dir)
         .with_context(|| format!("writing the comparison into {}", dir.display()))?;

@@ -52,7 +52,7 @@
 
 use crate::op::{Inputs, Op, OpError, OpSpec, Outputs, PortSpec, RunCtx};
 use crate::param::{ListLength, ParamError, ParamKind, ParamSpec, ParamValue, Params};
-use crate::value::{FromValue, Value, ValueType};
+use crate::value::{self, FromValue, Value, ValueType};
 use fusegraph_plugin_api::typed::{
     self as decl, InputPort, InputSet, InputSource, OpInfo, OutputPort, OutputSet, ParamRef,
     ParamSet, ParamSource,
@@ -222,12 +222,67 @@ impl InputSource for Inputs {
 }
 
 /// The value on `port` as `T` (for the value types' [`InputPort`]s).
-pub(crate) fn take_input<T: FromValue>(inputs: &Inputs, port: &str) -> Result<Arc<T>, String> {
+fn take_input<T: FromValue>(inputs: &Inputs, port: &str) -> Result<Arc<T>, String> {
     match inputs.get::<T>(port) {
         Ok(v) => Ok(v),
         Err(OpError::Input(_, why)) => Err(why),
         Err(e) => Err(e.to_string()),
     }
+}
+
+/// Ports of every value type: `Arc<T>` in, `T` or `Arc<T>` out.
+macro_rules! value_ports {
+    ($($name:ident => $ty:ty),+ $(,)?) => {
+        /// The value types given ports here (checked against
+        /// [`ValueType::ALL`] by a test).
+        #[cfg(test)]
+        const PORT_TYPES: &[ValueType] = &[$(ValueType::$name),+];
+        $(
+            impl<'a> InputPort<'a, Inputs> for Arc<$ty> {
+                fn type_names() -> Vec<&'static str> {
+                    vec![ValueType::$name.name()]
+                }
+                fn take(source: &'a Inputs, port: &str) -> Result<Self, String> {
+                    take_input::<$ty>(source, port)
+                }
+            }
+            impl OutputPort<Outputs> for $ty {
+                fn type_name() -> &'static str {
+                    ValueType::$name.name()
+                }
+                fn put(self, sink: &mut Outputs, port: &str) {
+                    sink.0.insert(port.into(), Value::$name(Arc::new(self)));
+                }
+            }
+            impl OutputPort<Outputs> for Arc<$ty> {
+                fn type_name() -> &'static str {
+                    ValueType::$name.name()
+                }
+                fn put(self, sink: &mut Outputs, port: &str) {
+                    sink.0.insert(port.into(), Value::$name(self));
+                }
+            }
+        )+
+    };
+}
+
+value_ports! {
+    Volume => value::Volume,
+    Mask => value::Mask,
+    Labels => value::Labels,
+    Image => value::Image,
+    Disparity => value::Disparity,
+    Mesh => value::Mesh,
+    PointCloud => value::PointCloud,
+    Markers => value::Markers,
+    Matches => value::Matches,
+    Camera => value::Camera,
+    StereoRig => value::StereoRig,
+    Rectification => value::Rectification,
+    Transform => value::Transform,
+    Table => value::Table,
+    Scalar => f64,
+    Path => value::PathValue,
 }
 
 /// A number on a `Scalar` port.
@@ -262,5 +317,231 @@ impl OutputPort<Outputs> for Value {
     }
     fn put(self, sink: &mut Outputs, port: &str) {
         sink.0.insert(port.into(), self);
+    }
+}
+
+/// A parameter is a field, so a misspelt one does not compile:
+///
+/// ```compile_fail
+/// use fusegraph_engine::typed::prelude::*;
+/// /// Doc
+/// #[derive(Op)]
+/// #[op(name = "demo.typo", version = 1)]
+/// pub struct Typo {
+///     /// Bins
+///     #[param(default = 256)]
+///     pub bins: usize,
+/// }
+/// impl Typo {
+///     fn histogram_size(&self) -> usize {
+///         self.binz
+///     }
+/// }
+/// ```
+///
+/// and neither does an attribute the derive does not know:
+///
+/// ```compile_fail
+/// use fusegraph_engine::typed::prelude::*;
+/// /// Doc
+/// #[derive(Op)]
+/// #[op(name = "demo.typo", version = 1)]
+/// pub struct Typo {
+///     /// Bins
+///     #[param(defualt = 256)]
+///     pub bins: usize,
+/// }
+/// ```
+#[doc(hidden)]
+pub fn _misspelt_parameters_do_not_compile() {}
+
+#[cfg(test)]
+mod tests {
+    use super::prelude::*;
+    use super::*;
+    use crate::op::Op;
+    use crate::value::{Mask, Table};
+    use std::path::{Path, PathBuf};
+
+    #[test]
+    fn every_value_type_has_ports() {
+        assert_eq!(PORT_TYPES, ValueType::ALL);
+    }
+
+    /// How far to go
+    #[derive(Params, Debug)]
+    struct Reach {
+        /// Distance
+        #[param(default = 4.0, unit = "mm", min = 0.0)]
+        distance_mm: f64,
+    }
+
+    /// A kernel
+    #[derive(Choice, Debug, Clone, Copy, PartialEq)]
+    enum Kernel {
+        Huber,
+        #[choice(name = "l2")]
+        Squared,
+    }
+
+    /// Every kind of field
+    #[derive(Op, Debug)]
+    #[op(name = "test.kinds", version = 3, writes_output)]
+    struct Kinds {
+        /// The kernel,
+        /// on two lines
+        #[param(default = Kernel::Squared)]
+        kernel: Kernel,
+        #[param(flatten)]
+        reach: Reach,
+        /// A pair
+        #[param(default = [9, 6])]
+        pattern: [usize; 2],
+        /// Flattened triples
+        #[param(default = [], unit = "mm", length_multiple_of = 3)]
+        points_mm: Vec<f64>,
+        /// Empty or a pair
+        #[param(default = [], lengths = [0, 2])]
+        bounds_px: Vec<f64>,
+        /// Left out: not given
+        truth: Option<PathBuf>,
+        /// Required
+        #[param(name = "type")]
+        r#type: String,
+    }
+
+    #[derive(Inputs)]
+    struct KindsInputs {
+        /// A volume or mask
+        #[input(types(Volume, Mask))]
+        grid: Value,
+        /// A number
+        level: Option<f64>,
+        /// A table
+        table: Option<Arc<Table>>,
+    }
+
+    #[derive(Outputs)]
+    struct KindsOutputs {
+        /// The level given, or the distance
+        level: f64,
+        /// The grid, passed through
+        grid: Arc<Mask>,
+    }
+
+    impl RunOp for Kinds {
+        type Inputs = KindsInputs;
+        type Outputs = KindsOutputs;
+        fn run(&self, inputs: KindsInputs, ctx: &mut RunCtx) -> Result<KindsOutputs, OpError> {
+            let Value::Mask(grid) = inputs.grid else {
+                return Err(OpError::invalid("a mask, please"));
+            };
+            ctx.metric(
+                "kernel_is_l2",
+                (self.kernel == Kernel::Squared) as u8 as f64,
+            );
+            assert!(inputs.table.is_none() && self.truth.is_none());
+            assert_eq!(self.pattern, [9, 6]);
+            assert!(self.points_mm.is_empty() && self.bounds_px.is_empty());
+            assert_eq!(self.r#type, "x");
+            Ok(KindsOutputs {
+                level: inputs.level.unwrap_or(self.reach.distance_mm),
+                grid,
+            })
+        }
+    }
+
+    #[test]
+    fn the_spec_is_derived_from_the_declarations() {
+        let spec = spec_of::<Kinds>().unwrap();
+        assert_eq!((spec.name.as_str(), spec.version), ("test.kinds", 3));
+        assert_eq!(spec.doc, "Every kind of field");
+        assert!(spec.writes_output);
+        spec.check().unwrap();
+        let names: Vec<&str> = spec.params.iter().map(|p| p.name.as_str()).collect();
+        assert_eq!(
+            names,
+            [
+                "kernel",
+                "distance_mm",
+                "pattern",
+                "points_mm",
+                "bounds_px",
+                "truth",
+                "type"
+            ]
+        );
+        let kernel = &spec.params[0];
+        assert_eq!(kernel.doc, "The kernel, on two lines");
+        assert_eq!(kernel.choices, ["huber", "l2"]);
+        assert_eq!(kernel.default, Some(ParamValue::String("l2".into())));
+        let reach = &spec.params[1];
+        assert_eq!(
+            (reach.unit.as_str(), reach.min, reach.max),
+            ("mm", Some(0.0), None)
+        );
+        assert_eq!(spec.params[2].length, Some(ListLength::OneOf(vec![2])));
+        assert_eq!(
+            spec.params[2].default,
+            Some(ParamValue::IntList(vec![9, 6]))
+        );
+        assert_eq!(spec.params[3].length, Some(ListLength::MultipleOf(3)));
+        assert_eq!(spec.params[4].length, Some(ListLength::OneOf(vec![0, 2])));
+        assert_eq!(
+            spec.params[5].default,
+            Some(ParamValue::Path(PathBuf::new()))
+        );
+        assert_eq!(spec.params[6].default, None, "no default: required");
+        let grid = &spec.inputs[0];
+        assert_eq!(grid.types, [ValueType::Volume, ValueType::Mask]);
+        assert!(!grid.optional && spec.inputs[1].optional && spec.inputs[2].optional);
+        assert_eq!(spec.inputs[1].types, [ValueType::Scalar]);
+        assert_eq!(spec.outputs[0].types, [ValueType::Scalar]);
+        assert_eq!(spec.outputs[1].types, [ValueType::Mask]);
+    }
+
+    fn params_of(spec: &OpSpec, set: &[(&str, ParamValue)]) -> Params {
+        let mut p = Params::default();
+        for s in &spec.params {
+            if let Some(d) = &s.default {
+                p.0.insert(s.name.clone(), d.clone());
+            }
+        }
+        for (k, v) in set {
+            p.0.insert(k.to_string(), v.clone());
+        }
+        p
+    }
+
+    #[test]
+    fn run_fills_the_structs_and_names_what_is_missing() {
+        let op = Typed::<Kinds>::new().unwrap();
+        let params = params_of(op.spec(), &[("type", ParamValue::String("x".into()))]);
+        let grid = crate::value::Grid::axis_aligned([2, 1, 1], [1.0; 3], [0.0; 3]);
+        let mask = Mask::new(grid, vec![0u8, 1]).unwrap();
+        let mut inputs = Inputs::default();
+        inputs.0.insert("grid".into(), mask.into());
+        let mut ctx = RunCtx::new("n", Path::new("."));
+        let out = op.run(&inputs, &params, &mut ctx).unwrap();
+        assert_eq!(out.0["level"], Value::from(4.0));
+        assert_eq!(ctx.metrics()["kernel_is_l2"], 1.0);
+        inputs.0.insert("level".into(), Value::from(2.5));
+        let out = op.run(&inputs, &params, &mut ctx).unwrap();
+        assert_eq!(out.0["level"], Value::from(2.5));
+
+        let e = op
+            .run(&Inputs::default(), &params, &mut ctx)
+            .unwrap_err()
+            .to_string();
+        assert_eq!(e, "input `grid`: not connected");
+        inputs.0.insert("table".into(), Value::from(2.5));
+        let e = op.run(&inputs, &params, &mut ctx).unwrap_err().to_string();
+        assert_eq!(e, "input `table`: is a Scalar, expected Table");
+        let bad = params_of(op.spec(), &[("type", ParamValue::Int(1))]);
+        let e = op.run(&inputs, &bad, &mut ctx).unwrap_err().to_string();
+        assert_eq!(e, "parameter `type`: is of kind integer, asked as string");
+        let missing = params_of(op.spec(), &[]);
+        let e = op.run(&inputs, &missing, &mut ctx).unwrap_err().to_string();
+        assert_eq!(e, "parameter `type`: is not declared");
     }
 }

@@ -298,7 +298,7 @@ pub fn nodes_csv(c: &Comparison) -> String {
     s
 }
 
-fn best_line(c: &Comparison) -> String {
+pub(super) fn best_line(c: &Comparison) -> String {
     match (&c.rank_by, c.best()) {
         (Some((m, b)), Some(row)) => {
             let col = c
@@ -350,20 +350,6 @@ pub fn to_markdown(c: &Comparison) -> String {
         let _ = writeln!(s, "| {} |", cells.join(" | "));
     }
     s
-}
-
-/// Writes the comparison files into `dir`.
-pub fn write_comparison(c: &Comparison, dir: &Path) -> std::io::Result<()> {
-    let write = |name: &str, text: String| {
-        crate::atomic::write_atomically(&dir.join(name), text.as_bytes())
-    };
-    write("comparison.csv", to_csv(c))?;
-    write("comparison_nodes.csv", nodes_csv(c))?;
-    write("comparison.md", to_markdown(c))?;
-    write(
-        "comparison.html",
-        super::compare_html::to_html(c, &best_line(c)),
-    )
 }
 
 #[cfg(test)]

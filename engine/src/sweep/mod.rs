@@ -197,3 +197,17 @@ pub fn default_cache(plan: &SweepPlan) -> PathBuf {
         .join(".fusegraph")
         .join("cache")
 }
+
+/// Writes the comparison files into `dir`.
+pub fn write_comparison(c: &compare::Comparison, dir: &Path) -> std::io::Result<()> {
+    let write = |name: &str, text: String| {
+        crate::atomic::write_atomically(&dir.join(name), text.as_bytes())
+    };
+    write("comparison.csv", compare::to_csv(c))?;
+    write("comparison_nodes.csv", compare::nodes_csv(c))?;
+    write("comparison.md", compare::to_markdown(c))?;
+    write(
+        "comparison.html",
+        compare_html::to_html(c, &compare::best_line(c)),
+    )
+}

@@ -22,7 +22,6 @@ pub use optics::{Camera, Rectification, StereoRig, Transform};
 pub use path::PathValue;
 pub use table::Table;
 
-use fusegraph_plugin_api::typed::{InputPort, OutputPort};
 use serde::Serialize;
 use std::fmt;
 use std::sync::Arc;
@@ -76,30 +75,6 @@ macro_rules! value_types {
                 const TYPE: ValueType = ValueType::$name;
                 fn from_value(value: &Value) -> Option<&Arc<Self>> {
                     match value { Value::$name(v) => Some(v), _ => None }
-                }
-            }
-            impl<'a> InputPort<'a, crate::op::Inputs> for Arc<$ty> {
-                fn type_names() -> Vec<&'static str> {
-                    vec![stringify!($name)]
-                }
-                fn take(source: &'a crate::op::Inputs, port: &str) -> Result<Self, String> {
-                    crate::typed::take_input::<$ty>(source, port)
-                }
-            }
-            impl OutputPort<crate::op::Outputs> for $ty {
-                fn type_name() -> &'static str {
-                    stringify!($name)
-                }
-                fn put(self, sink: &mut crate::op::Outputs, port: &str) {
-                    sink.0.insert(port.into(), Value::$name(Arc::new(self)));
-                }
-            }
-            impl OutputPort<crate::op::Outputs> for Arc<$ty> {
-                fn type_name() -> &'static str {
-                    stringify!($name)
-                }
-                fn put(self, sink: &mut crate::op::Outputs, port: &str) {
-                    sink.0.insert(port.into(), Value::$name(self));
                 }
             }
         )+

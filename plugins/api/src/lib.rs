@@ -1,29 +1,15 @@
 //! fusegraph's plugin API: what a dynamic library needs to add node types
 //! (ops) to fusegraph without forking it. The boundary is a versioned C ABI
-//! ([`abi`]); this crate wraps both of its sides in safe Rust, so a plugin op
-//! is about as short as a built-in one:
+//! ([`abi`]); this crate wraps both of its sides in safe Rust.
 //!
-//! ```
-//! use fusegraph_plugin_api::{Inputs, OpDecl, Outputs, Param, Params, PluginOp, export_plugin};
-//!
-//! struct Invert;
-//! impl PluginOp for Invert {
-//!     fn declare(&self) -> OpDecl {
-//!         OpDecl::new("demo.invert", 1, "255 - each sample")
-//!             .input("image", &["Image"], "An 8-bit image")
-//!             .output("image", "Image", "The inverted image")
-//!     }
-//!     fn run(&self, inputs: &Inputs, _: &Params, out: &mut Outputs) -> Result<(), String> {
-//!         let im = inputs.image("image")?;
-//!         let fusegraph_plugin_api::PixelsView::U8(px) = im.pixels else {
-//!             return Err("8-bit images only".into());
-//!         };
-//!         out.image_u8("image", im.width, im.height, im.channels, px.iter().map(|v| 255 - v).collect());
-//!         Ok(())
-//!     }
-//! }
-//! export_plugin!(Invert);
-//! ```
+//! A plugin op is written in the same typed form as a built-in one (feature
+//! `derive`; see [`typed`] and the example on [`TypedPluginOp`]): a struct
+//! whose fields are its parameters, two structs for its ports, and
+//! [`TypedPluginOp::run`]. [`Typed`] turns it into a [`PluginOp`] whose
+//! TOML declaration (what the host reads) is generated from the derives.
+//! [`OpDecl`] and [`Param`] are the lower-level builders of that TOML;
+//! plugins written with them, and plugins built against ABI v1 before the
+//! typed form, keep working.
 //!
 //! Build it as a `cdylib` and run a graph with `fusegraph run --plugin
 //! target/release/libmy_plugin.so`. See plugins/README.md.

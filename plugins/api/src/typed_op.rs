@@ -15,7 +15,58 @@ use std::marker::PhantomData;
 
 /// A plugin op in the typed form: `Self` holds its parameters (filled from
 /// the graph), `run` gets its inputs and returns its outputs; metrics and
-/// notes go to `out`.
+/// notes go to `out`. (The example needs the `derive` feature.)
+///
+#[cfg_attr(feature = "derive", doc = "```")]
+#[cfg_attr(not(feature = "derive"), doc = "```ignore")]
+/// use fusegraph_plugin_api::derive::{Inputs, Op, Outputs};
+/// use fusegraph_plugin_api::{ImageU8, ImageView, PixelsView, Typed, TypedPluginOp, export_plugin};
+///
+/// /// Each 8-bit sample's distance from a level
+/// #[derive(Op)]
+/// #[op(name = "demo.invert", version = 1)]
+/// pub struct Invert {
+///     /// The level samples are inverted around
+///     #[param(default = 255, min = 0, max = 255)]
+///     pub level: i64,
+/// }
+///
+/// #[derive(Inputs)]
+/// pub struct InvertInputs<'a> {
+///     /// An 8-bit image
+///     pub image: ImageView<'a>,
+/// }
+///
+/// #[derive(Outputs)]
+/// pub struct InvertOutputs {
+///     /// The inverted image
+///     pub image: ImageU8,
+/// }
+///
+/// impl TypedPluginOp for Invert {
+///     type Inputs<'a> = InvertInputs<'a>;
+///     type Outputs = InvertOutputs;
+///     fn run(&self, inputs: InvertInputs<'_>, out: &mut fusegraph_plugin_api::Outputs)
+///         -> Result<InvertOutputs, String> {
+///         let im = inputs.image;
+///         let PixelsView::U8(px) = im.pixels else {
+///             return Err("8-bit images only".into());
+///         };
+///         let level = self.level as i32;
+///         let pixels = px.iter().map(|&v| (level - v as i32).unsigned_abs().min(255) as u8).collect();
+///         out.metric("level", level as f64);
+///         Ok(InvertOutputs {
+///             image: ImageU8 { width: im.width, height: im.height, channels: im.channels, pixels },
+///         })
+///     }
+/// }
+///
+/// export_plugin!(Typed::<Invert>::new());
+///
+/// use fusegraph_plugin_api::PluginOp;
+/// let toml = Typed::<Invert>::new().declare().to_toml();
+/// assert!(toml.contains("kind = \"int\", unit = \"\", doc = \"The level samples are inverted around\", default = 255, min = 0.0, max = 255.0"), "{toml}");
+/// ```
 pub trait TypedPluginOp: OpInfo + ParamSet + Send + Sync + 'static {
     /// The input ports (view types borrow the host's buffers).
     type Inputs<'a>: InputSet<'a, Inputs<'a>>;

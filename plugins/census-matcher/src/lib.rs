@@ -161,3 +161,36 @@ impl TypedPluginOp for CensusMatch {
 }
 
 export_plugin!(Typed::<CensusMatch>::new());
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fusegraph_plugin_api::{OpDecl, Param, PluginOp};
+
+    /// The declaration as it was written with the builder before the typed
+    /// form: the host must read the same TOML from the derive.
+    fn builder_declaration() -> OpDecl {
+        OpDecl::new(
+            "census.match",
+            1,
+            "Census transform + box-aggregated Hamming costs, winner-takes-all, left-right check -> Disparity",
+        )
+        .input("left", &["Image"], "Left rectified image")
+        .input("right", &["Image"], "Right rectified image, same size")
+        .optional_input("min_disparity", &["Scalar"], "Lowest disparity, px (overrides min_disparity_px)")
+        .optional_input("max_disparity", &["Scalar"], "Highest disparity, px (overrides max_disparity_px)")
+        .output("disparity", "Disparity", "Disparity on the left rectified image, px (NaN: no match)")
+        .param(Param::int_list("census_window_px", &[9, 7], "px", "Census window width, height (odd; area <= 64)").lengths(&[2]))
+        .param(Param::int("aggregate_px", 7, "px", "Side of the window costs are summed over (odd)").range(1.0, 51.0))
+        .param(Param::int("min_disparity_px", 0, "px", "Lowest disparity when no input gives it"))
+        .param(Param::int("max_disparity_px", 64, "px", "Highest disparity when no input gives it"))
+        .param(Param::float("lr_max_diff_px", 1.0, "px", "Largest left-right disagreement kept (negative: no check)"))
+        .param(Param::float("uniqueness_pct", 5.0, "%", "The best cost must be this much below the second best").range(0.0, 100.0))
+    }
+
+    #[test]
+    fn the_derived_declaration_is_the_builders() {
+        let derived = Typed::<CensusMatch>::new().declare();
+        assert_eq!(derived.to_toml(), builder_declaration().to_toml());
+    }
+}

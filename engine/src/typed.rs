@@ -36,7 +36,7 @@
 //!     type Inputs = ScaleInputs;
 //!     type Outputs = ScaleOutputs;
 //!     fn run(&self, inputs: ScaleInputs, _: &mut RunCtx) -> Result<ScaleOutputs, OpError> {
-//!         let data = inputs.volume.data.iter().map(|v| v * self.factor as f32).collect();
+//!         let data: Vec<f32> = inputs.volume.data.iter().map(|v| v * self.factor as f32).collect();
 //!         let volume = Volume::new(inputs.volume.grid.clone(), data)
 //!             .map_err(|e| OpError::invalid(e.0))?;
 //!         Ok(ScaleOutputs { volume })

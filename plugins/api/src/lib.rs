@@ -30,6 +30,11 @@ pub use declare::{OpDecl, Param};
 pub mod derive {
     pub use fusegraph_derive::{Choice, Inputs, Op, Outputs, Params};
 }
+
+/// The plugin author's guide: its Rust examples compile and run as doctests.
+#[cfg(all(doctest, feature = "derive"))]
+#[doc = include_str!("../../README.md")]
+pub struct PluginGuide;
 pub use output::Outputs;
 pub use typed_op::{DisparityMap, DisparityView, ImageU8, Typed, TypedPluginOp};
 pub use view::{ImageView, Inputs, Params, PixelsView, TableView};

@@ -1,12 +1,8 @@
-//! Disparity maps in and out: `io.read_disparity` (PFM, or 8/16-bit PGM or PNG
-//! holding disparity times a scale, as Middlebury and KITTI store them) and
-//! `io.write_disparity` (a colour-mapped PNG with a legend in px, and a PFM).
+//! Disparity map files: reading PFM, or 8/16-bit PGM or PNG holding
+//! disparity times a scale (as Middlebury and KITTI store them), and writing
+//! PFM and a colour-mapped PNG with a legend in px.
 
-use super::images::SourceFileSpec;
 use fusegraph_engine::value::Disparity;
-use fusegraph_engine::{
-    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType, path_value,
-};
 use std::path::Path;
 
 /// The first `n` whitespace-separated header tokens of a PNM-style file
@@ -311,126 +307,6 @@ pub fn disparity_png(
         root.present().map_err(|e| e.to_string())?;
     }
     Ok((rgb, w, h))
-}
-
-pub(crate) struct ReadDisparityOp(OpSpec);
-
-impl ReadDisparityOp {
-    pub(crate) fn new() -> Self {
-        ReadDisparityOp(
-            OpSpec::new(
-                "io.read_disparity",
-                1,
-                "Read a disparity map: PFM (inf = unknown), or 8/16-bit PGM or PNG divided by `scale`",
-            )
-            .with_source_file()
-            .param(
-                ParamSpec::float(
-                    "scale",
-                    1.0,
-                    "",
-                    "Stored value / scale = disparity in px (Middlebury 2003 disp2.pgm: 4; KITTI: 256)",
-                )
-                .at_least(1e-9),
-            )
-            .param(ParamSpec::bool(
-                "zero_is_unknown",
-                true,
-                "In PGM and PNG files, a stored 0 means no disparity (NaN)",
-            ))
-            .output("disparity", ValueType::Disparity, "The disparity map, px"),
-        )
-    }
-}
-
-impl Op for ReadDisparityOp {
-    fn spec(&self) -> &OpSpec {
-        &self.0
-    }
-
-    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
-        let path = super::images::source_file(inputs, params)?;
-        let d = read_disparity(
-            &path,
-            params.float("scale")?,
-            params.bool("zero_is_unknown")?,
-        )
-        .map_err(OpError::invalid)?;
-        let known = d.data.iter().filter(|v| v.is_finite()).count();
-        ctx.metric("known_pct", 100.0 * known as f64 / d.data.len() as f64);
-        Ok(Outputs::new().with("disparity", d))
-    }
-}
-
-pub(crate) struct WriteDisparityOp(OpSpec);
-
-impl WriteDisparityOp {
-    pub(crate) fn new() -> Self {
-        WriteDisparityOp(
-            OpSpec::new(
-                "io.write_disparity",
-                1,
-                "Write a disparity map as a colour-mapped PNG with a legend in px, and as PFM",
-            )
-            .input("disparity", &[ValueType::Disparity], "The disparity map, px")
-            .param(ParamSpec::string(
-                "file",
-                "disparity",
-                "File stem, relative to the output folder: STEM.png and STEM.pfm",
-            ))
-            .param(ParamSpec::float(
-                "min_px",
-                0.0,
-                "px",
-                "Disparity at the low end of the colour map (when max_px <= min_px, as by default: the 1st percentile)",
-            ))
-            .param(ParamSpec::float(
-                "max_px",
-                0.0,
-                "px",
-                "Disparity at the high end (when max_px <= min_px: the 99th percentile)",
-            ))
-            .output("png", ValueType::Path, "The colour-mapped PNG (unknown = black)")
-            .output("pfm", ValueType::Path, "The PFM (little endian, unknown = inf)")
-            .writes_output(),
-        )
-    }
-}
-
-impl Op for WriteDisparityOp {
-    fn spec(&self) -> &OpSpec {
-        &self.0
-    }
-
-    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
-        let d = inputs.get::<Disparity>("disparity")?;
-        let stem = params.string("file")?;
-        let (lo, hi) = (params.float("min_px")?, params.float("max_px")?);
-        let range = if hi > lo {
-            (lo, hi)
-        } else {
-            let (a, b) = finite_percentiles(&d.data, 1.0, 99.0).unwrap_or((0.0, 1.0));
-            if b > a { (a, b) } else { (a - 0.5, a + 0.5) }
-        };
-        let (rgb, w, h) = disparity_png(&d, range).map_err(OpError::invalid)?;
-        let png = ctx.output_path(&format!("{stem}.png"))?;
-        image::save_buffer(
-            &png,
-            &rgb,
-            w as u32,
-            h as u32,
-            image::ExtendedColorType::Rgb8,
-        )
-        .map_err(|e| OpError::invalid(format!("{}: {e}", png.display())))?;
-        let pfm = ctx.output_path(&format!("{stem}.pfm"))?;
-        std::fs::write(&pfm, encode_pfm(d.width, d.height, &d.data))
-            .map_err(|e| OpError::io(&pfm, e))?;
-        ctx.metric("min_px", range.0);
-        ctx.metric("max_px", range.1);
-        Ok(Outputs::new()
-            .with("png", path_value(&png)?)
-            .with("pfm", path_value(&pfm)?))
-    }
 }
 
 #[cfg(test)]

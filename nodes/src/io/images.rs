@@ -1,30 +1,51 @@
-//! Images in and out: `io.read_image` and `io.write_stereo_pair` (a rectified
-//! pair side by side with horizontal lines, to check rectification by eye).
+//! Images in and out: decoding PNG and JPEG files (as RGB, or straight to grey
+//! levels) within a size limit, and a rectified pair side by side with
+//! horizontal lines, to check rectification by eye.
 
-use fusegraph_engine::value::{Image, PathValue, Pixels};
-use fusegraph_engine::{
-    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType, path_value,
-};
-use std::sync::Arc;
+use fusegraph_engine::OpError;
+use fusegraph_engine::param::ParamSpec;
+use fusegraph_engine::value::{Image, Pixels};
+use fusegraph_plugin_api::derive::Params;
+use fusegraph_plugin_api::typed::ParamSet;
 
 /// The largest image read by default, in pixels (100 Mpixel: well above any
 /// camera; a header declaring more is refused before anything is allocated).
 pub const DEFAULT_MAX_PIXELS: u64 = 100_000_000;
 
-/// The `max_megapixels` parameter of the ops that read images.
-pub(crate) fn max_megapixels_param() -> ParamSpec {
-    ParamSpec::float(
-        "max_megapixels",
-        DEFAULT_MAX_PIXELS as f64 / 1e6,
-        "Mpixel",
-        "Largest image to decode: a file whose header declares more is refused before decoding",
-    )
-    .range(0.01, 10_000.0)
+/// The `max_megapixels` parameter of the ops that read images (flattened into
+/// them with `#[param(flatten)]`).
+#[derive(Debug, Clone, Copy, PartialEq, Params)]
+pub struct ImageSizeLimit {
+    /// Largest image to decode: a file whose header declares more is refused before decoding
+    #[param(default = DEFAULT_MAX_PIXELS as f64 / 1e6, unit = "Mpixel", min = 0.01, max = 10_000.0)]
+    pub max_megapixels: f64,
 }
 
-/// Pixels allowed by a `max_megapixels` parameter.
-pub(crate) fn max_pixels(params: &Params) -> Result<u64, OpError> {
-    Ok((params.float("max_megapixels")? * 1e6) as u64)
+impl ImageSizeLimit {
+    /// The limit in pixels.
+    pub fn max_pixels(&self) -> u64 {
+        (self.max_megapixels * 1e6) as u64
+    }
+}
+
+/// The `max_megapixels` parameter as the engine declares it, for ops still
+/// declared with [`ParamSpec`] builders (the typed form flattens
+/// [`ImageSizeLimit`] instead).
+pub fn max_megapixels_param() -> ParamSpec {
+    let decl = ImageSizeLimit::param_decls().remove(0);
+    fusegraph_engine::typed::param_spec(decl)
+}
+
+/// Pixels allowed by a `max_megapixels` parameter (for ops still declared with
+/// [`ParamSpec`] builders; the typed form uses [`ImageSizeLimit::max_pixels`]).
+pub fn max_pixels(params: &fusegraph_engine::Params) -> Result<u64, OpError> {
+    let limit = ImageSizeLimit::from_params(params).map_err(|p| {
+        OpError::Param(fusegraph_engine::param::ParamError {
+            name: p.name,
+            problem: p.problem,
+        })
+    })?;
+    Ok(limit.max_pixels())
 }
 
 /// Refuses an image whose declared size exceeds `max_pixels`, naming the file,
@@ -172,7 +193,9 @@ fn rgb8(img: &Image) -> Vec<u8> {
         .collect()
 }
 
-/// The two images side by side with a horizontal line every `every_px` rows.
+/// The two images side by side with a red horizontal line every `every_px`
+/// rows (0: none): 8-bit RGB rows, and the width and height in px. The images
+/// must be equally high.
 pub fn side_by_side(
     left: &Image,
     right: &Image,
@@ -199,119 +222,6 @@ pub fn side_by_side(
         }
     }
     Ok((out, w, h))
-}
-
-/// The ports and parameters that say which file a reader op reads: a `dir`
-/// input with a `file` name, or a `path`; [`source_file`] resolves them.
-pub(crate) trait SourceFileSpec {
-    /// Adds the `dir` input and the `file` and `path` parameters.
-    fn with_source_file(self) -> Self;
-}
-
-impl SourceFileSpec for OpSpec {
-    fn with_source_file(self) -> Self {
-        self.optional_input(
-            "dir",
-            &[ValueType::Path],
-            "Folder the file is in (else relative to the graph)",
-        )
-        .param(ParamSpec::string(
-            "file",
-            "",
-            "File name (inside `dir` when connected)",
-        ))
-        .param(ParamSpec::optional_path(
-            "path",
-            "File, relative to the graph (instead of dir + file)",
-        ))
-    }
-}
-
-/// The file a reader op reads: its `path` parameter, or its `dir` input joined
-/// with its `file` parameter (exactly one of the two).
-pub(crate) fn source_file(inputs: &Inputs, params: &Params) -> Result<std::path::PathBuf, OpError> {
-    let dir: Option<Arc<PathValue>> = inputs.optional("dir")?;
-    match (params.optional_path("path")?, dir) {
-        (Some(p), None) => Ok(p),
-        (None, Some(d)) => Ok(d.path.join(params.string("file")?)),
-        _ => Err(OpError::invalid(
-            "give the `path` parameter, or the `dir` input and the `file` parameter",
-        )),
-    }
-}
-
-pub(crate) struct ReadImageOp(OpSpec);
-
-impl ReadImageOp {
-    pub(crate) fn new() -> Self {
-        ReadImageOp(
-            OpSpec::new(
-                "io.read_image",
-                2,
-                "Read an image file (PNG or JPEG) as 8-bit RGB",
-            )
-            .with_source_file()
-            .param(max_megapixels_param())
-            .output("image", ValueType::Image, "The image"),
-        )
-    }
-}
-
-impl Op for ReadImageOp {
-    fn spec(&self) -> &OpSpec {
-        &self.0
-    }
-    fn run(&self, inputs: &Inputs, params: &Params, _: &mut RunCtx) -> Result<Outputs, OpError> {
-        let path = source_file(inputs, params)?;
-        Ok(Outputs::new().with("image", load_image_within(&path, max_pixels(params)?)?))
-    }
-}
-
-pub(crate) struct WriteStereoPairOp(OpSpec);
-
-impl WriteStereoPairOp {
-    pub(crate) fn new() -> Self {
-        WriteStereoPairOp(
-            OpSpec::new(
-                "io.write_stereo_pair",
-                1,
-                "Write two images side by side as PNG, with horizontal lines",
-            )
-            .input("left", &[ValueType::Image], "Left image")
-            .input("right", &[ValueType::Image], "Right image")
-            .param(
-                ParamSpec::int("lines_every_px", 40, "px", "Line spacing (0 = none)").at_least(0.0),
-            )
-            .param(ParamSpec::string(
-                "file",
-                "pair.png",
-                "PNG file, relative to the output folder",
-            ))
-            .output("file", ValueType::Path, "The PNG")
-            .writes_output(),
-        )
-    }
-}
-
-impl Op for WriteStereoPairOp {
-    fn spec(&self) -> &OpSpec {
-        &self.0
-    }
-    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
-        let (l, r) = (inputs.get::<Image>("left")?, inputs.get::<Image>("right")?);
-        let (rgb, w, h) =
-            side_by_side(&l, &r, params.count("lines_every_px")?).map_err(OpError::invalid)?;
-        let path = ctx.output_path(&params.string("file")?)?;
-        image::save_buffer(
-            &path,
-            &rgb,
-            w as u32,
-            h as u32,
-            image::ExtendedColorType::Rgb8,
-        )
-        .map_err(|e| OpError::invalid(format!("{}: {e}", path.display())))?;
-        Ok(Outputs::new().with("file", path_value(&path)?))
-    }
 }
 
 #[cfg(test)]

@@ -1,56 +1,57 @@
 //! File nodes: sources that read files into the graph and sinks (`io.write_*`)
-//! that write values under the run's output folder.
+//! that write values under the run's output folder. The file formats are plain
+//! functions here (images, disparity maps, volumes, meshes, markers, tables,
+//! rigs, transforms, JSON); the ops, one file each, are in [`ops`].
 
 mod disparity;
 mod images;
-mod path;
-mod read_markers;
-mod write_json;
-mod write_markers;
-mod write_mesh;
-mod write_registration;
-mod write_rig;
-mod write_table;
-mod write_volume;
+mod itk_transform;
+mod json;
+mod markers;
+mod meshes;
+mod opencv_yaml;
+pub mod ops;
+mod path_values;
+mod source_file;
+mod tables;
+mod volumes;
 
 pub use disparity::{
     decode_pfm, decode_pgm, disparity_png, encode_pfm, finite_percentiles, read_disparity, viridis,
 };
 pub use images::{
-    DEFAULT_MAX_PIXELS, GreyImage, grey_of, load_grey, load_grey_within, load_image,
-    load_image_within, side_by_side,
+    DEFAULT_MAX_PIXELS, GreyImage, ImageSizeLimit, grey_of, load_grey, load_grey_within,
+    load_image, load_image_within, max_megapixels_param, max_pixels, side_by_side,
 };
-pub(crate) use images::{max_megapixels_param, max_pixels};
-pub use read_markers::{parse_markups, parse_points_csv};
-pub use write_json::value_to_json;
-pub use write_markers::{markers_csv, slicer_markups};
-pub use write_mesh::{write_ply, write_stl};
-pub use write_registration::{itk_transform_text, read_itk_transform};
-pub use write_rig::rig_yaml;
-pub use write_table::{table_csv, table_markdown};
-pub use write_volume::{
+pub use itk_transform::{itk_transform_text, read_itk_transform};
+pub use json::value_to_json;
+pub use markers::{markers_csv, parse_markups, parse_points_csv, slicer_markups};
+pub use meshes::{write_ply, write_stl};
+pub use opencv_yaml::rig_yaml;
+pub use source_file::{SourceDir, SourceFile};
+pub use tables::{table_csv, table_markdown};
+pub use volumes::{
     NiftiVolume, VoxelBuf, Voxels, lps_to_ras, read_nifti, read_nrrd, write_nifti, write_nrrd,
 };
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;
-use std::sync::Arc;
 
 /// Registers the `io.*` ops.
 pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
-    registry.register(Arc::new(path::PathOp::new()))?;
-    registry.register(Arc::new(images::ReadImageOp::new()))?;
-    registry.register(Arc::new(read_markers::ReadMarkersOp::new()))?;
-    registry.register(Arc::new(images::WriteStereoPairOp::new()))?;
-    registry.register(Arc::new(write_rig::WriteRigOp::new()))?;
-    registry.register(Arc::new(write_registration::WriteTransformOp::new()))?;
-    registry.register(Arc::new(write_registration::WriteCloudOp::new()))?;
-    registry.register(Arc::new(write_json::WriteJsonOp::new()))?;
-    registry.register(Arc::new(write_markers::WriteMarkersOp::new()))?;
-    registry.register(Arc::new(write_mesh::WriteMeshOp::new()))?;
-    registry.register(Arc::new(write_table::WriteTableOp::new()))?;
-    registry.register(Arc::new(write_volume::WriteVolumeOp::new()))?;
-    registry.register(Arc::new(disparity::ReadDisparityOp::new()))?;
-    registry.register(Arc::new(disparity::WriteDisparityOp::new()))?;
+    registry.add::<ops::DiskPath>()?;
+    registry.add::<ops::ReadImage>()?;
+    registry.add::<ops::ReadMarkers>()?;
+    registry.add::<ops::WriteStereoPair>()?;
+    registry.add::<ops::WriteRig>()?;
+    registry.add::<ops::WriteTransform>()?;
+    registry.add::<ops::WriteCloud>()?;
+    registry.add::<ops::WriteJson>()?;
+    registry.add::<ops::WriteMarkers>()?;
+    registry.add::<ops::WriteMesh>()?;
+    registry.add::<ops::WriteTable>()?;
+    registry.add::<ops::WriteVolume>()?;
+    registry.add::<ops::ReadDisparity>()?;
+    registry.add::<ops::WriteDisparity>()?;
     Ok(())
 }

@@ -1,5 +1,6 @@
-//! `io.write_volume`: a volume or mask with its geometry as NRRD (`.nrrd`) or
-//! NIfTI-1 (`.nii`, `.nii.gz`), for 3D Slicer, ITK-SNAP, SimpleITK, nibabel.
+//! Volume files: a volume or mask with its geometry as NRRD (`.nrrd`) or
+//! NIfTI-1 (`.nii`, `.nii.gz`), for 3D Slicer, ITK-SNAP, SimpleITK, nibabel
+//! (what `io.write_volume` writes).
 //!
 //! Both carry the full voxel -> patient affine. NRRD keeps our frame (DICOM LPS,
 //! mm, `space: left-posterior-superior`) and writes numbers in full precision.
@@ -12,9 +13,6 @@
 //! other tools in the same layouts); they are used by the tests.
 
 use fusegraph_engine::value::Grid;
-use fusegraph_engine::{
-    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, Value, ValueType, path_value,
-};
 use std::io::{Read, Write};
 use std::path::Path;
 
@@ -111,7 +109,24 @@ fn gunzip(bytes: &[u8]) -> Result<Vec<u8>, String> {
 /// Writes `voxels` on `grid` as a NRRD file (attached header): type float or
 /// uint8, little-endian, `space: left-posterior-superior`, `space directions`
 /// (the affine's columns, mm per voxel step along i, j, k), `space origin` (LPS
-/// mm of voxel (0, 0, 0)), `space units` mm; `gzip` compresses the data.
+/// mm of voxel (0, 0, 0)), `space units` mm; `gzip_data` compresses the data.
+/// [`read_nrrd`] reads it back.
+///
+/// # Examples
+///
+/// ```
+/// use fusegraph_engine::value::Grid;
+/// use fusegraph_nodes::io::{VoxelBuf, Voxels, read_nrrd, write_nrrd};
+///
+/// // 2 x 2 x 1 voxels of 0.5 x 0.5 x 2 mm, voxel (0, 0, 0) at LPS (10, -20, 30) mm.
+/// let grid = Grid::axis_aligned([2, 2, 1], [0.5, 0.5, 2.0], [10.0, -20.0, 30.0]);
+/// let folder = tempfile::tempdir().unwrap();
+/// let path = folder.path().join("v.nrrd");
+/// write_nrrd(&path, &grid, Voxels::F32(&[0.0, 1.5, -2.0, 4.25]), true).unwrap();
+/// let (back, voxels) = read_nrrd(&path).unwrap();
+/// assert_eq!(back, grid);
+/// assert_eq!(voxels, VoxelBuf::F32(vec![0.0, 1.5, -2.0, 4.25]));
+/// ```
 pub fn write_nrrd(
     path: &Path,
     grid: &Grid,
@@ -539,97 +554,35 @@ pub fn read_nifti(path: &Path) -> Result<NiftiVolume, String> {
     })
 }
 
-/// The file formats, by extension.
+/// A volume file format.
 #[derive(Debug, Clone, Copy, PartialEq)]
-enum Format {
+pub(crate) enum VolumeFormat {
+    /// NRRD (`.nrrd`), see [`write_nrrd`].
     Nrrd,
-    Nifti { gzip: bool },
+    /// Single-file NIfTI-1 (`.nii`, or `.nii.gz` gzipped), see [`write_nifti`].
+    Nifti {
+        /// Whether the whole file is gzipped.
+        gzip: bool,
+    },
 }
 
-fn format_of(file: &str) -> Option<Format> {
+/// The format a file name's extension names (any case), `None` for others.
+pub(crate) fn volume_format(file: &str) -> Option<VolumeFormat> {
     let lower = file.to_ascii_lowercase();
     if lower.ends_with(".nrrd") {
-        Some(Format::Nrrd)
+        Some(VolumeFormat::Nrrd)
     } else if lower.ends_with(".nii.gz") {
-        Some(Format::Nifti { gzip: true })
+        Some(VolumeFormat::Nifti { gzip: true })
     } else if lower.ends_with(".nii") {
-        Some(Format::Nifti { gzip: false })
+        Some(VolumeFormat::Nifti { gzip: false })
     } else {
         None
-    }
-}
-
-pub(crate) struct WriteVolumeOp(OpSpec);
-
-impl WriteVolumeOp {
-    pub(crate) fn new() -> Self {
-        WriteVolumeOp(
-            OpSpec::new(
-                "io.write_volume",
-                1,
-                "Write a volume or mask with its voxel -> patient affine as NRRD (LPS) or NIfTI-1 (RAS), by extension, under the output folder",
-            )
-            .input(
-                "volume",
-                &[ValueType::Volume, ValueType::Mask],
-                "Volume (written as float32) or mask (uint8)",
-            )
-            .param(ParamSpec::string(
-                "file",
-                "volume.nrrd",
-                "File name (.nrrd, .nii or .nii.gz), relative to the output folder",
-            ))
-            .param(ParamSpec::choice(
-                "encoding",
-                &["gzip", "raw"],
-                "NRRD data encoding (NIfTI: the extension decides, .nii.gz is gzipped)",
-            ))
-            .output("file", ValueType::Path, "The written file")
-            .writes_output(),
-        )
-    }
-}
-
-impl Op for WriteVolumeOp {
-    fn spec(&self) -> &OpSpec {
-        &self.0
-    }
-
-    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
-        let file = params.string("file")?;
-        let format = format_of(&file).ok_or_else(|| {
-            OpError::invalid(format!(
-                "file {file:?}: use a .nrrd, .nii or .nii.gz extension"
-            ))
-        })?;
-        let (grid, voxels) = match inputs.value("volume") {
-            Some(Value::Volume(v)) => (&v.grid, Voxels::F32(&v.data)),
-            Some(Value::Mask(m)) => (&m.grid, Voxels::U8(&m.data)),
-            _ => {
-                return Err(OpError::Input(
-                    "volume".into(),
-                    "expected a Volume or a Mask".into(),
-                ));
-            }
-        };
-        let path = ctx.output_path(&file)?;
-        match format {
-            Format::Nrrd => write_nrrd(&path, grid, voxels, params.string("encoding")? == "gzip"),
-            Format::Nifti { gzip } => write_nifti(&path, grid, voxels, gzip),
-        }
-        .map_err(|e| OpError::io(&path, e))?;
-        let bytes = std::fs::metadata(&path)
-            .map_err(|e| OpError::io(&path, e))?
-            .len();
-        ctx.metric("bytes", bytes as f64);
-        Ok(Outputs::new().with("file", path_value(&path)?))
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use fusegraph_engine::value::Mask;
 
     /// An oblique grid with spacing 0.7 x 1.3 x 2.9 mm (rotated 30 deg about z,
     /// then 20 deg about x) and a far-off origin.
@@ -750,39 +703,6 @@ mod tests {
             let back = qform_affine(q, qfac, [0.5, 0.5, 2.0], [0.0; 3]);
             assert!(max_diff(&back, &ras) < 1e-12, "{back:?} vs {ras:?}");
         }
-    }
-
-    #[test]
-    fn masks_are_uint8_and_the_op_picks_the_format_by_extension() {
-        let t = tempfile::tempdir().unwrap();
-        let grid = oblique();
-        let bits: Vec<u8> = (0..grid.len()).map(|i| (i % 3 == 0) as u8).collect();
-        let mask = Mask::new(grid.clone(), bits.clone()).unwrap();
-        let op = WriteVolumeOp::new();
-        let mut inputs = Inputs::default();
-        inputs.0.insert("volume".into(), Value::from(mask));
-        let run = |file: &str, encoding: &str| {
-            let mut params = Params::default();
-            params.0.insert(
-                "file".into(),
-                fusegraph_engine::ParamValue::String(file.into()),
-            );
-            params.0.insert(
-                "encoding".into(),
-                fusegraph_engine::ParamValue::String(encoding.into()),
-            );
-            let mut ctx = RunCtx::new("write", t.path());
-            op.run(&inputs, &params, &mut ctx)
-                .map(|_| t.path().join(file))
-        };
-        let (back, data) = read_nrrd(&run("m/mask.nrrd", "raw").unwrap()).unwrap();
-        assert_eq!((back, data), (grid.clone(), VoxelBuf::U8(bits.clone())));
-        let back = read_nifti(&run("mask.nii.gz", "gzip").unwrap()).unwrap();
-        assert_eq!(back.voxels, VoxelBuf::U8(bits));
-        let raw = gunzip(&std::fs::read(t.path().join("mask.nii.gz")).unwrap()).unwrap();
-        assert_eq!(i16::from_le_bytes([raw[70], raw[71]]), DT_UINT8);
-        let err = run("mask.mha", "gzip").unwrap_err().to_string();
-        assert!(err.contains(".nrrd, .nii or .nii.gz"), "{err}");
     }
 
     #[test]

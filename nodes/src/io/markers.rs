@@ -1,12 +1,65 @@
-//! `io.read_markers`: points a user marked (targets in MRI, say) from a 3D
-//! Slicer markups file (`.mrk.json`, LPS or RAS) or a CSV with `x`, `y`, `z`
-//! columns (mm; `x_mm` etc. too, as `io.write_markers` writes them).
+//! Marker files: 3D Slicer markups (`.mrk.json`; written in LPS, read in LPS
+//! or RAS) and CSV with `x`, `y`, `z` columns (mm; `x_mm` etc. too, as
+//! [`markers_csv`] writes them).
 
-use super::images::{SourceFileSpec, source_file};
 use fusegraph_engine::value::Markers;
-use fusegraph_engine::{
-    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType,
-};
+
+/// A Slicer markups fiducial list: every control point `defined`, positions in
+/// LPS mm (Slicer converts to its RAS display itself).
+pub fn slicer_markups(markers: &Markers, name: &str) -> serde_json::Value {
+    let points: Vec<serde_json::Value> = markers
+        .positions_mm
+        .chunks(3)
+        .zip(markers.ids.iter())
+        .map(|(p, id)| {
+            serde_json::json!({
+                "id": id.to_string(),
+                "label": format!("{name}-{id}"),
+                "position": [p[0], p[1], p[2]],
+                "positionStatus": "defined",
+                "selected": true,
+                "locked": false,
+                "visibility": true,
+            })
+        })
+        .collect();
+    serde_json::json!({
+        "@schema": "https://raw.githubusercontent.com/slicer/slicer/master/Modules/Loadable/Markups/Resources/Schema/markups-schema-v1.0.3.json#",
+        "markups": [{
+            "type": "Fiducial",
+            "coordinateSystem": "LPS",
+            "coordinateUnits": "mm",
+            "locked": false,
+            "labelFormat": "%N-%d",
+            "controlPoints": points,
+        }]
+    })
+}
+
+/// The markers as CSV: a header `id,x_mm,y_mm,z_mm,frame`, then one row per
+/// marker, positions in mm of `markers.frame` in full precision.
+/// [`parse_points_csv`] reads it back.
+///
+/// # Examples
+///
+/// ```
+/// use fusegraph_engine::value::Markers;
+/// use fusegraph_nodes::io::{markers_csv, parse_points_csv};
+///
+/// let m = Markers::new(vec![1.0, -2.5, 30.0, 4.0, 5.0, 6.0], vec![7, 9], "mri_lps").unwrap();
+/// let csv = markers_csv(&m);
+/// assert_eq!(csv.lines().nth(1), Some("7,1,-2.5,30,mri_lps"));
+/// let (points, ids) = parse_points_csv(&csv).unwrap();
+/// assert_eq!(points, vec![[1.0, -2.5, 30.0], [4.0, 5.0, 6.0]]);
+/// assert_eq!(ids, vec![7, 9]);
+/// ```
+pub fn markers_csv(markers: &Markers) -> String {
+    let mut s = String::from("id,x_mm,y_mm,z_mm,frame\n");
+    for (p, id) in markers.positions_mm.chunks(3).zip(markers.ids.iter()) {
+        s += &format!("{id},{},{},{},{}\n", p[0], p[1], p[2], markers.frame);
+    }
+    s
+}
 
 /// The control points of a Slicer markups file, in LPS mm, with their ids
 /// (the order in the file when an id is not a number).
@@ -86,57 +139,21 @@ pub fn parse_points_csv(text: &str) -> Result<(Vec<[f64; 3]>, Vec<u32>), String>
     Ok((points, ids))
 }
 
-pub(crate) struct ReadMarkersOp(OpSpec);
-
-impl ReadMarkersOp {
-    pub(crate) fn new() -> Self {
-        ReadMarkersOp(
-            OpSpec::new(
-                "io.read_markers",
-                1,
-                "Read marked points (e.g. targets in MRI) from a 3D Slicer .mrk.json or a CSV with x, y, z columns (mm)",
-            )
-            .with_source_file()
-            .param(ParamSpec::string(
-                "frame",
-                "mri_lps",
-                "Frame the points are in (a Slicer file's RAS points are turned into LPS)",
-            ))
-            .output("markers", ValueType::Markers, "The points, mm, in `frame`"),
-        )
-    }
-}
-
-impl Op for ReadMarkersOp {
-    fn spec(&self) -> &OpSpec {
-        &self.0
-    }
-    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
-        let path = source_file(inputs, params)?;
-        let text = std::fs::read_to_string(&path).map_err(|e| OpError::io(&path, e))?;
-        let name = path.to_string_lossy();
-        let parsed = if name.ends_with(".json") {
-            parse_markups(&text)
-        } else {
-            parse_points_csv(&text)
-        };
-        let (points, ids) =
-            parsed.map_err(|e| OpError::invalid(format!("{}: {e}", path.display())))?;
-        ctx.metric("points", points.len() as f64);
-        let markers = Markers::new(
-            points.iter().flatten().copied().collect::<Vec<f64>>(),
-            ids,
-            &params.string("frame")?,
-        )
-        .map_err(|e| OpError::invalid(e.0))?;
-        Ok(Outputs::new().with("markers", markers))
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::io::{markers_csv, slicer_markups};
+
+    #[test]
+    fn markups_are_lps_and_defined() {
+        let m = Markers::new(vec![1.0, -2.0, 3.5, 4.0, 5.0, 6.0], vec![1, 2], "mri_lps").unwrap();
+        let j = slicer_markups(&m, "M");
+        let mk = &j["markups"][0];
+        assert_eq!(mk["coordinateSystem"], "LPS");
+        assert_eq!(mk["controlPoints"].as_array().unwrap().len(), 2);
+        assert_eq!(mk["controlPoints"][0]["position"][1], -2.0);
+        assert_eq!(mk["controlPoints"][1]["positionStatus"], "defined");
+        assert_eq!(markers_csv(&m).lines().nth(1), Some("1,1,-2,3.5,mri_lps"));
+    }
 
     #[test]
     fn what_write_markers_writes_reads_back() {

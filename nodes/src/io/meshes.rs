@@ -1,18 +1,17 @@
-//! `io.write_mesh`: a mesh as binary PLY (vertices, normals, faces) or binary
-//! STL (by the file's extension). STL goes through the stl_io crate; PLY is
-//! written here because ply-rs-bw builds a map per vertex (slow for the
-//! hundreds of thousands of vertices of an isosurface) and binary PLY is a
-//! dozen lines.
+//! Meshes and point clouds as files: binary PLY (vertices, normals or colours,
+//! faces) and binary STL. STL goes through the stl_io crate; PLY is written
+//! here because ply-rs-bw builds a map per vertex (slow for the hundreds of
+//! thousands of vertices of an isosurface) and binary PLY is a dozen lines.
 
 use fusegraph_engine::value::Mesh;
-use fusegraph_engine::{
-    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType, path_value,
-};
 use std::io::Write;
 use std::path::Path;
 
-/// Writes `mesh` as binary little-endian PLY with float x y z (and nx ny nz when
-/// the mesh has normals) and uchar-counted int faces; optional per-vertex RGB.
+/// Writes a mesh or point cloud as binary little-endian PLY: float x y z per
+/// vertex (`vertices`, 3 per vertex, in the caller's frame and unit), float
+/// nx ny nz when `normals` are given, uchar red green blue when `colors` are,
+/// and the `triangles` (3 vertex indices each; none for a cloud) as
+/// uchar-counted int faces; `comment` goes into the header.
 pub fn write_ply(
     path: &Path,
     vertices: &[f32],
@@ -93,62 +92,6 @@ pub fn write_stl(path: &Path, mesh: &Mesh) -> std::io::Result<()> {
         .collect();
     let mut file = std::fs::File::create(path)?;
     stl_io::write_stl(&mut file, triangles.iter())
-}
-
-pub(crate) struct WriteMeshOp(OpSpec);
-
-impl WriteMeshOp {
-    pub(crate) fn new() -> Self {
-        WriteMeshOp(
-            OpSpec::new(
-                "io.write_mesh",
-                1,
-                "Write a mesh as binary PLY or STL (by extension) under the output folder",
-            )
-            .input("mesh", &[ValueType::Mesh], "The mesh")
-            .param(ParamSpec::string(
-                "file",
-                "surface.ply",
-                "File name (.ply or .stl), relative to the output folder",
-            ))
-            .output("file", ValueType::Path, "The written file")
-            .writes_output(),
-        )
-    }
-}
-
-impl Op for WriteMeshOp {
-    fn spec(&self) -> &OpSpec {
-        &self.0
-    }
-
-    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
-        let mesh = inputs.get::<Mesh>("mesh")?;
-        let file = params.string("file")?;
-        let path = ctx.output_path(&file)?;
-        let ext = path
-            .extension()
-            .and_then(|e| e.to_str())
-            .map(str::to_ascii_lowercase);
-        match ext.as_deref() {
-            Some("ply") => write_ply(
-                &path,
-                &mesh.vertices,
-                mesh.normals.as_deref(),
-                None,
-                &mesh.triangles,
-                &format!("fusegraph mesh, mm, frame {}", mesh.frame),
-            ),
-            Some("stl") => write_stl(&path, &mesh),
-            _ => {
-                return Err(OpError::invalid(format!(
-                    "file {file:?}: use a .ply or .stl extension"
-                )));
-            }
-        }
-        .map_err(|e| OpError::io(&path, e))?;
-        Ok(Outputs::new().with("file", path_value(&path)?))
-    }
 }
 
 #[cfg(test)]

@@ -1,11 +1,8 @@
-//! `io.write_rig`: a stereo rig as JSON and as an OpenCV FileStorage YAML file
-//! (`cv2.FileStorage(path, cv2.FILE_STORAGE_READ)` reads K1, D1, K2, D2, R, T,
-//! image_width, image_height).
+//! A stereo rig as an OpenCV FileStorage YAML file, as `io.write_rig` writes
+//! it (`cv2.FileStorage(path, cv2.FILE_STORAGE_READ)` reads K1, D1, K2, D2, R,
+//! T, image_width, image_height).
 
 use fusegraph_engine::value::StereoRig;
-use fusegraph_engine::{
-    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType, path_value,
-};
 
 fn matrix(name: &str, rows: usize, cols: usize, data: &[f64]) -> String {
     let values: Vec<String> = data.iter().map(|v| format!("{v:.17e}")).collect();
@@ -29,47 +26,6 @@ pub fn rig_yaml(rig: &StereoRig) -> String {
     s += &matrix("R", 3, 3, rig.rotation.as_flattened());
     s += &matrix("T", 3, 1, &rig.translation_mm);
     s
-}
-
-pub(crate) struct WriteRigOp(OpSpec);
-
-impl WriteRigOp {
-    pub(crate) fn new() -> Self {
-        WriteRigOp(
-            OpSpec::new(
-                "io.write_rig",
-                1,
-                "Write a stereo rig as JSON and OpenCV FileStorage YAML",
-            )
-            .input("rig", &[ValueType::StereoRig], "The rig")
-            .param(ParamSpec::string(
-                "file",
-                "rig",
-                "Base name: writes NAME.json and NAME.yml",
-            ))
-            .output("json", ValueType::Path, "The JSON file")
-            .output("yaml", ValueType::Path, "The YAML file")
-            .writes_output(),
-        )
-    }
-}
-
-impl Op for WriteRigOp {
-    fn spec(&self) -> &OpSpec {
-        &self.0
-    }
-    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
-        let rig = inputs.get::<StereoRig>("rig")?;
-        let name = params.string("file")?;
-        let json = ctx.output_path(&format!("{name}.json"))?;
-        let text = serde_json::to_string_pretty(&*rig).expect("plain data");
-        std::fs::write(&json, text + "\n").map_err(|e| OpError::io(&json, e))?;
-        let yaml = ctx.output_path(&format!("{name}.yml"))?;
-        std::fs::write(&yaml, rig_yaml(&rig)).map_err(|e| OpError::io(&yaml, e))?;
-        Ok(Outputs::new()
-            .with("json", path_value(&json)?)
-            .with("yaml", path_value(&yaml)?))
-    }
 }
 
 #[cfg(test)]

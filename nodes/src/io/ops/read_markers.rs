@@ -1,0 +1,49 @@
+//! `io.read_markers`: points a user marked (targets in MRI, say) from a 3D
+//! Slicer markups file or a CSV.
+
+use crate::io::{SourceDir, SourceFile, parse_markups, parse_points_csv};
+use fusegraph_engine::typed::prelude::*;
+use fusegraph_engine::value::Markers;
+
+/// Read marked points (e.g. targets in MRI) from a 3D Slicer .mrk.json or a CSV with x, y, z columns (mm)
+#[derive(Op)]
+#[op(name = "io.read_markers", version = 1)]
+pub struct ReadMarkers {
+    /// Which file: `file` in the `dir` input, or `path`.
+    #[param(flatten)]
+    pub source: SourceFile,
+    /// Frame the points are in (a Slicer file's RAS points are turned into LPS)
+    #[param(default = "mri_lps")]
+    pub frame: String,
+}
+
+#[derive(Outputs)]
+pub struct ReadMarkersOutputs {
+    /// The points, mm, in `frame`
+    pub markers: Markers,
+}
+
+impl RunOp for ReadMarkers {
+    type Inputs = SourceDir;
+    type Outputs = ReadMarkersOutputs;
+
+    fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
+        let path = self.source.resolve(inputs.dir.as_deref())?;
+        let text = std::fs::read_to_string(&path).map_err(|e| OpError::io(&path, e))?;
+        let parsed = if path.to_string_lossy().ends_with(".json") {
+            parse_markups(&text)
+        } else {
+            parse_points_csv(&text)
+        };
+        let (points, ids) =
+            parsed.map_err(|e| OpError::invalid(format!("{}: {e}", path.display())))?;
+        ctx.metric("points", points.len() as f64);
+        let markers = Markers::new(
+            points.iter().flatten().copied().collect::<Vec<f64>>(),
+            ids,
+            &self.frame,
+        )
+        .map_err(|e| OpError::invalid(e.0))?;
+        Ok(ReadMarkersOutputs { markers })
+    }
+}

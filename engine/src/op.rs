@@ -492,13 +492,13 @@ pub trait Op: Send + Sync {
     fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError>;
 }
 
-/// A `Path` value for `path`, hashed by content (for ops that write files).
-pub fn path_value(path: &std::path::Path) -> Result<Value, OpError> {
+/// A `Path` value for `path`, hashed by content (for ops that write files;
+/// a typed op's `Path` output is a `PathValue` field).
+pub fn path_value(path: &std::path::Path) -> Result<PathValue, OpError> {
     let hash = crate::hash::hash_path(path).map_err(|e| OpError::io(path, e))?;
     let abs = std::path::absolute(path).map_err(|e| OpError::io(path, e))?;
     Ok(PathValue {
         path: abs,
         content_hash: hash.to_hex().to_string(),
-    }
-    .into())
+    })
 }

@@ -309,17 +309,6 @@ impl<'a> InputPort<'a, Inputs> for Value {
     }
 }
 
-/// An output of whatever type the value has (declared with the type of the
-/// port it stands for by the op's own [`OutputSet`]).
-impl OutputPort<Outputs> for Value {
-    fn type_name() -> &'static str {
-        "Value"
-    }
-    fn put(self, sink: &mut Outputs, port: &str) {
-        sink.0.insert(port.into(), self);
-    }
-}
-
 /// A parameter is a field, so a misspelt one does not compile:
 ///
 /// ```compile_fail

@@ -1,17 +1,14 @@
 //! Files on disk as `Path` values: keyed by their content, with their size.
 
 use fusegraph_engine::value::PathValue;
-use fusegraph_engine::{OpError, Value, path_value};
+use fusegraph_engine::{OpError, path_value};
 use std::path::Path;
 use std::sync::Arc;
 
 /// The file or folder at `path` as a `Path` value (absolute, keyed by its
 /// content), for an op's `Path` output.
 pub(crate) fn path_of(path: &Path) -> Result<Arc<PathValue>, OpError> {
-    match path_value(path)? {
-        Value::Path(p) => Ok(p),
-        other => unreachable!("path_value made a {:?}", other.value_type()),
-    }
+    path_value(path).map(Arc::new)
 }
 
 /// Bytes in the file at `path`, or in every file under the folder at `path`.

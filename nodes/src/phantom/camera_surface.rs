@@ -6,32 +6,47 @@
 
 use super::truth::GroundTruth;
 use crate::camera::{CameraModel, isometry_from_matrix};
+use fusegraph_plugin_api::derive::Params;
 use nalgebra::{Isometry3, Point3, Vector3};
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
-/// How to degrade the true surface.
-#[derive(Debug, Clone, PartialEq)]
+/// How to degrade the true surface: noise along and across the viewing rays
+/// (stereo depth and lateral error), a fraction of outliers displaced 5-30 mm
+/// along their ray (bad matches), isotropic noise on each marker centre, some
+/// visible markers dropped and spurious ones added (on the skin, away from
+/// real ones). The parameters of `phantom.camera_surface` (flattened into
+/// it), declared here once.
+#[derive(Debug, Clone, PartialEq, Params)]
 pub struct SurfaceSimParams {
-    /// Which view pair of the truth.
+    /// Which view pair
+    #[param(default = 0, min = 0)]
     pub view: usize,
-    /// Sample every this many pixels of the left image.
+    /// Sample every this many left-image pixels
+    #[param(default = 3, unit = "px", min = 1, max = 64)]
     pub step_px: usize,
-    /// Noise along the viewing ray (stereo depth error), mm.
+    /// Noise along the viewing ray
+    #[param(default = 0.5, unit = "mm", min = 0.0, max = 10.0)]
     pub depth_noise_mm: f64,
-    /// Noise across the viewing ray, mm.
+    /// Noise across the viewing ray
+    #[param(default = 0.1, unit = "mm", min = 0.0, max = 10.0)]
     pub lateral_noise_mm: f64,
-    /// Fraction of points displaced 5-30 mm along their ray (bad matches).
+    /// Fraction of points 5-30 mm off
+    #[param(default = 0.03, min = 0.0, max = 0.5)]
     pub outlier_fraction: f64,
-    /// Noise of each marker centre, mm (isotropic).
+    /// Noise of each marker centre
+    #[param(default = 0.3, unit = "mm", min = 0.0, max = 10.0)]
     pub marker_noise_mm: f64,
-    /// Visible markers to drop.
+    /// Visible markers to drop
+    #[param(default = 2, min = 0, max = 30)]
     pub missing_markers: usize,
-    /// Spurious markers to add (on the skin, away from real ones).
+    /// Spurious markers to add
+    #[param(default = 1, min = 0, max = 10)]
     pub spurious_markers: usize,
-    /// Seed.
+    /// Seed of the noise
+    #[param(default = 1, min = 0)]
     pub seed: u64,
 }
 

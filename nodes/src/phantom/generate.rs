@@ -11,6 +11,7 @@ use super::scenes::{Chessboard, ChessboardScene, PhantomScene};
 use super::shape::{Material, PhantomShape, ShapeParams, Surface};
 use super::truth::*;
 use crate::camera::isometry_to_matrix;
+use fusegraph_plugin_api::derive::Choice;
 use nalgebra::{Isometry3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -18,31 +19,22 @@ use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// Resolution presets.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// Resolution presets (the `size` of `phantom.generate`, by its snake-case
+/// name).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Choice)]
 pub enum PhantomSize {
-    /// 1.5 mm voxels, light anti-aliasing: for fast tests.
-    Small,
     /// 0.6 x 0.6 x 1.0 mm voxels, full anti-aliasing: for accuracy figures.
     Full,
+    /// 1.5 mm voxels, light anti-aliasing: for fast tests.
+    Small,
 }
 
 impl PhantomSize {
-    /// Parses `small` or `full`.
+    /// Parses `full` or `small`.
     pub fn parse(s: &str) -> Option<Self> {
-        match s {
-            "small" => Some(PhantomSize::Small),
-            "full" => Some(PhantomSize::Full),
-            _ => None,
-        }
-    }
-
-    /// The preset's name.
-    pub fn name(self) -> &'static str {
-        match self {
-            PhantomSize::Small => "small",
-            PhantomSize::Full => "full",
-        }
+        [PhantomSize::Full, PhantomSize::Small]
+            .into_iter()
+            .find(|size| size.name() == s)
     }
 }
 

@@ -9,7 +9,7 @@ mod camera_surface;
 mod dicom_series;
 mod generate;
 mod mri;
-mod ops;
+pub mod ops;
 mod render;
 mod rig;
 mod scenes;
@@ -17,26 +17,26 @@ mod shape;
 mod texture;
 mod true_disparity;
 mod truth;
+mod truth_input;
 
 pub use camera_surface::{SimulatedSurface, SurfaceSimParams, simulate_camera_surface};
 pub use generate::{Generated, PhantomConfig, PhantomSize, generate};
-pub(crate) use ops::{optional_truth_input, truth_input};
 pub use rig::Rig;
 pub use scenes::MARKER_GREEN;
-pub use shape::{Lesion, Marker, Material, PhantomShape, ShapeParams};
+pub use shape::{Lesion, Marker, Material, PhantomShape, ShapeParams, Triples};
 pub use true_disparity::{SceneLabel, TrueDisparity, ViewScene, true_disparity};
 pub use truth::*;
+pub(crate) use truth_input::{load_truth, optional_truth_input, truth_input};
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;
-use std::sync::Arc;
 
 /// Registers the `phantom.*` ops.
 pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
-    registry.register(Arc::new(ops::GenerateOp::new()))?;
-    registry.register(Arc::new(ops::CameraSurfaceOp::new()))?;
-    registry.register(Arc::new(ops::RigPoseOp::new()))?;
-    registry.register(Arc::new(ops::LesionsOp::new()))?;
-    registry.register(Arc::new(ops::TrueDisparityOp::new()))?;
+    registry.add::<ops::Generate>()?;
+    registry.add::<ops::CameraSurface>()?;
+    registry.add::<ops::RigPose>()?;
+    registry.add::<ops::Lesions>()?;
+    registry.add::<ops::TrueDisparity>()?;
     Ok(())
 }

@@ -4,6 +4,10 @@
 //! small internal lesions. Point classification (for the MRI) and ray casting
 //! (for the cameras) are exact on this description.
 
+use fusegraph_engine::Params as ParamValues;
+use fusegraph_engine::typed::param_spec;
+use fusegraph_plugin_api::derive::Params;
+use fusegraph_plugin_api::typed::{ParamDefault, ParamKind, ParamRef, ParamSet, ParamType};
 use nalgebra::{Point3, Rotation3, Unit, Vector3};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
@@ -120,42 +124,97 @@ pub struct PhantomShape {
     rotation_cache: OnceLock<Rotation3<f64>>,
 }
 
-/// The geometry parameters a phantom is built from.
-#[derive(Debug, Clone, PartialEq)]
+/// The geometry parameters a phantom is built from, in the phantom's own
+/// frame (mm): the dome's width along x and depth along y at its base on
+/// z = 0, its height along z, a forward droop about x; markers on the skin
+/// and spherical lesions inside. They are the shape parameters of
+/// `phantom.generate` (flattened into it), declared here once: each field's
+/// doc, default, unit and range; [`Default`] gives the declared defaults.
+#[derive(Debug, Clone, PartialEq, Params)]
 pub struct ShapeParams {
-    /// Dome width at the base along x, mm.
+    /// Dome width at the base
+    #[param(default = 130.0, unit = "mm", min = 60.0, max = 200.0)]
     pub width_mm: f64,
-    /// Dome depth at the base along y, mm.
+    /// Dome depth at the base
+    #[param(default = 120.0, unit = "mm", min = 60.0, max = 200.0)]
     pub depth_mm: f64,
-    /// Dome height, mm.
+    /// Dome height
+    #[param(default = 60.0, unit = "mm", min = 30.0, max = 100.0)]
     pub height_mm: f64,
-    /// Forward droop of the dome, deg.
+    /// Forward droop of the dome
+    #[param(default = 8.0, unit = "deg", min = -20.0, max = 20.0)]
     pub droop_deg: f64,
-    /// Number of markers.
+    /// Number of markers
+    #[param(default = 12, min = 0, max = 30)]
     pub marker_count: usize,
-    /// Marker disc diameter, mm.
+    /// Marker disc diameter
+    #[param(default = 9.0, unit = "mm", min = 4.0, max = 20.0)]
     pub marker_diameter_mm: f64,
-    /// Marker height above the skin, mm.
+    /// Marker height above the skin
+    #[param(default = 5.0, unit = "mm", min = 2.5, max = 10.0)]
     pub marker_thickness_mm: f64,
-    /// Lesion centres, phantom frame, mm.
-    pub lesion_centers_mm: Vec<[f64; 3]>,
-    /// Lesion diameter, mm.
+    /// Lesion centres in the phantom frame, flattened x, y, z triples
+    #[param(
+        default = Triples(vec![[12.0, -8.0, 22.0], [-18.0, 14.0, 16.0], [20.0, 16.0, 32.0]]),
+        unit = "mm",
+        length_multiple_of = 3
+    )]
+    pub lesions_mm: Triples,
+    /// Lesion diameter
+    #[param(default = 6.0, unit = "mm", min = 1.0, max = 20.0)]
     pub lesion_diameter_mm: f64,
 }
 
 impl Default for ShapeParams {
+    /// Every parameter at its declared default.
     fn default() -> Self {
-        ShapeParams {
-            width_mm: 130.0,
-            depth_mm: 120.0,
-            height_mm: 60.0,
-            droop_deg: 8.0,
-            marker_count: 12,
-            marker_diameter_mm: 9.0,
-            marker_thickness_mm: 5.0,
-            lesion_centers_mm: vec![[12.0, -8.0, 22.0], [-18.0, 14.0, 16.0], [20.0, 16.0, 32.0]],
-            lesion_diameter_mm: 6.0,
+        let params = ParamValues(
+            ShapeParams::param_decls()
+                .into_iter()
+                .filter_map(|d| {
+                    let p = param_spec(d);
+                    Some((p.name, p.default?))
+                })
+                .collect(),
+        );
+        ShapeParams::from_params(&params).expect("every shape parameter has a default")
+    }
+}
+
+/// 3D points (x, y, z, e.g. mm) that a parameter gives as one flat list of
+/// numbers, whose length must be a multiple of 3.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Triples(pub Vec<[f64; 3]>);
+
+impl std::ops::Deref for Triples {
+    type Target = [[f64; 3]];
+    fn deref(&self) -> &Self::Target {
+        &self.0
+    }
+}
+
+impl From<Vec<[f64; 3]>> for Triples {
+    fn from(points: Vec<[f64; 3]>) -> Self {
+        Triples(points)
+    }
+}
+
+impl ParamType for Triples {
+    const KIND: ParamKind = ParamKind::FloatList;
+    fn from_param(value: ParamRef<'_>) -> Result<Self, String> {
+        let flat = Vec::<f64>::from_param(value)?;
+        if flat.len() % 3 != 0 {
+            return Err(format!(
+                "holds {} numbers; it must hold x, y, z triples",
+                flat.len()
+            ));
         }
+        Ok(Triples(
+            flat.chunks(3).map(|c| [c[0], c[1], c[2]]).collect(),
+        ))
+    }
+    fn to_default(&self) -> ParamDefault {
+        ParamDefault::FloatList(self.0.iter().flatten().copied().collect())
     }
 }
 
@@ -207,7 +266,7 @@ impl PhantomShape {
             rotation_cache: OnceLock::new(),
         };
         shape.markers = shape.layout_markers(p, rng)?;
-        for (i, c) in p.lesion_centers_mm.iter().enumerate() {
+        for (i, c) in p.lesions_mm.iter().enumerate() {
             let center = Point3::from(*c);
             let r = 0.5 * p.lesion_diameter_mm;
             if !shape.inside_dome(&center) || shape.surface_clearance(&center) < r + 3.0 {
@@ -608,7 +667,7 @@ mod tests {
     fn bad_geometry_is_an_error() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
         let p = ShapeParams {
-            lesion_centers_mm: vec![[0.0, 0.0, 200.0]],
+            lesions_mm: vec![[0.0, 0.0, 200.0]].into(),
             ..ShapeParams::default()
         };
         assert!(

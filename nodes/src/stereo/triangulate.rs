@@ -7,6 +7,7 @@
 
 use crate::calib::StereoRectification;
 use nalgebra::{Point3, Vector4};
+use rayon::prelude::*;
 
 /// The point seen at left rectified pixel (`x_px`, `y_px`) with disparity
 /// `d_px` (`x_left - x_right`), in mm in the original left camera frame; `None`
@@ -28,6 +29,32 @@ pub fn point_from_disparity(
         return None;
     }
     Some(Point3::from(rect.r1.transpose() * rectified.coords))
+}
+
+/// The points (mm, original left camera frame) of every valid disparity whose
+/// depth lies in `min_depth_mm..=max_depth_mm`, with the pixel each came from;
+/// `disparity` is a map on the left rectified image, `width` px wide, px
+/// (NaN = invalid).
+pub fn triangulate_disparity(
+    disparity: &[f32],
+    width: usize,
+    rect: &StereoRectification,
+    min_depth_mm: f64,
+    max_depth_mm: f64,
+) -> Vec<(usize, Point3<f64>)> {
+    disparity
+        .par_iter()
+        .enumerate()
+        .filter_map(|(i, &d)| {
+            if d.is_nan() {
+                return None;
+            }
+            let p = point_from_disparity(rect, (i % width) as f64, (i / width) as f64, d as f64)?;
+            (min_depth_mm..=max_depth_mm)
+                .contains(&p.z)
+                .then_some((i, p))
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -17,16 +17,28 @@
 //! Both keep at most `max_features`, strongest first but spread over a grid of
 //! cells, so texture-poor regions still get features.
 //!
+//! Then [`match_features`] pairs the keypoints of the two images by their
+//! descriptors, and [`disparity_range`] turns the matched disparities into the
+//! range a dense matcher searches.
+//!
 //! Frame: pixel coordinates of the input image, x right, y down, integer values
 //! at pixel centres; angles in rad from +x towards +y.
 
+#[cfg(test)]
+mod eval;
 mod fast;
 mod integral;
+mod matching;
+mod range;
 mod surf;
+mod table;
 
 pub use fast::{FastParams, detect_fast};
 pub use integral::Integral;
+pub use matching::{FeatureMatch, MatchParams, match_features};
+pub use range::{RangeParams, disparity_range, percentile};
 pub use surf::{HessianParams, detect_hessian};
+pub use table::{features_from_table, features_to_table};
 
 /// One detected keypoint.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -241,11 +253,11 @@ mod tests {
                 })
             })
             .count();
-        let p = crate::stereo::MatchParams {
+        let p = MatchParams {
             rectified: false,
             ..Default::default()
         };
-        let m = crate::stereo::match_features(&a, &b, &p).unwrap();
+        let m = match_features(&a, &b, &p).unwrap();
         let right = m
             .iter()
             .filter(|m| {

@@ -3,8 +3,10 @@
 //! left disparity, 0 unknown), measured against their ground truth. Nothing
 //! here is tuned to these images; the asserts are sanity floors.
 
-use super::features::{FastParams, Features, HessianParams, detect_fast, detect_hessian};
-use super::{MatchParams, RangeParams, disparity_range, match_features};
+use super::{
+    FastParams, Features, HessianParams, MatchParams, RangeParams, detect_fast, detect_hessian,
+    disparity_range, match_features,
+};
 use crate::io::{grey_of, load_image};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -168,7 +170,7 @@ fn middlebury_matches_and_ranges() {
 #[test]
 #[ignore]
 fn time_per_800_by_600_image() {
-    use super::features::test_images::BlobTexture;
+    use super::test_images::BlobTexture;
     let (w, h) = (800usize, 600usize);
     let tex = BlobTexture::new(-20.0, -20.0, 820.0, 620.0, 3);
     let img = tex.render(w, h, |x, y| (x, y));

@@ -5,6 +5,7 @@
 
 use super::pair::DisparityRange;
 use super::simd::Isa;
+use super::volume::valid_ks;
 use rayon::prelude::*;
 
 /// How disparities are chosen from costs.
@@ -122,7 +123,7 @@ pub(crate) fn select_row<T: Cost>(
         let Some(Winner { best, k, runner_up }) = T::winner(c, isa) else {
             continue;
         };
-        let (k_lo, k_hi) = super::cost::valid_ks(x, width, range);
+        let (k_lo, k_hi) = valid_ks(x, width, range);
         if k < k_lo || k >= k_hi {
             continue; // no possible match at all
         }

@@ -6,18 +6,21 @@
 //! Window sums are column sums over the window's rows followed by a running
 //! sum along the row, so the cost is independent of the window's width.
 
-use super::cost::{census_transform, valid_ks};
+use super::cost::census_transform;
 use super::pair::{DisparityRange, GreyImage};
 use super::select::{SelectParams, select};
 use super::simd::Isa;
+use super::volume::valid_ks;
+use fusegraph_plugin_api::derive::Choice;
 
-/// How windows are compared.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// How windows are compared (the `cost` of `stereo.block_match`, by its
+/// snake-case name).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Choice)]
 pub enum BlockCost {
-    /// Sum of absolute grey-level differences.
-    Sad,
     /// 1 - zero-mean normalised cross-correlation.
     Zncc,
+    /// Sum of absolute grey-level differences.
+    Sad,
     /// Sum over the window of Hamming distances between 5 x 5 census codes.
     Census,
 }

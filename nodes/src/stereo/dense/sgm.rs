@@ -13,10 +13,10 @@
 //! (and the two downward diagonals with 8 paths), and bottom-up with
 //! right-to-left (and the upward diagonals), meeting in the middle.
 
-use super::cost::CostRows;
 use super::pair::{DisparityRange, GreyImage};
 use super::select::{SelectParams, select_row};
-use super::simd::{Isa, sgm_pixel_body};
+use super::simd::{Isa, kernels};
+use super::volume::{CostRows, lanes_for};
 use std::ops::Range;
 use std::sync::OnceLock;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -181,12 +181,6 @@ impl PassPlan {
             back_horizontal: false,
         }
     }
-}
-
-/// Lanes per pixel for `n` disparities: a whole number of 16-lane vectors, so
-/// the kernels never fall back to scalar code for a remainder.
-pub fn lanes_for(n: usize) -> usize {
-    n.div_ceil(16) * 16
 }
 
 /// The rows a pass runs over and the ways it goes.
@@ -394,6 +388,13 @@ pub(crate) struct RowJob<'a> {
     pub sum_row: &'a mut [u16],
 }
 
+kernels! {
+    /// One row of a semi-global aggregation pass ([`row_body`]).
+    fn sgm_row(job: &mut RowJob<'_>) {
+        row_body(job)
+    }
+}
+
 /// The pixels of one row of a pass, in the pass's order.
 #[inline(always)]
 pub(crate) fn row_body(job: &mut RowJob<'_>) {
@@ -461,6 +462,61 @@ pub(crate) fn row_body(job: &mut RowJob<'_>) {
     }
     if !job.p2_back.is_empty() {
         back_horizontal(job);
+    }
+}
+
+/// The recurrence of Hirschmüller's semi-global matching for one pixel:
+/// `L(k) = C(k) + min(L'(k), L'(k-1) + P1, L'(k+1) + P1, min L' + P2) - min L'`.
+/// For path p, `prev[p]` holds the previous pixel's path costs in lanes
+/// 1..=n (lane 0 and n + 1 are large sentinels), `prev_min[p]` their minimum;
+/// the new path costs go to lanes 1..=n of `out[p]`, their (saturating) sum
+/// over paths to `sum` (replacing it, or added to it with `add_to_sum`), and
+/// the new minima to `out_min` (each written where it is kept, rather than
+/// returned as an array: packing and unpacking that array stalled on store
+/// forwarding, a sixth of the aggregation time). `cost` has the n
+/// matching costs; `pad` is added to every new cost (0, or a sentinel for
+/// lanes past the disparity count, which then never win).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn sgm_pixel_body<const N: usize>(
+    cost: &[u8],
+    pad: &[u16],
+    prev: [&[u16]; N],
+    prev_min: [u16; N],
+    p1: u16,
+    p2: [u16; N],
+    out: [&mut [u16]; N],
+    out_min: [&mut u16; N],
+    sum: &mut [u16],
+    add_to_sum: bool,
+) {
+    let n = cost.len();
+    let (cost, pad, sum) = (&cost[..n], &pad[..n], &mut sum[..n]);
+    let below: [&[u16]; N] = std::array::from_fn(|p| &prev[p][0..n]);
+    let same: [&[u16]; N] = std::array::from_fn(|p| &prev[p][1..n + 1]);
+    let above: [&[u16]; N] = std::array::from_fn(|p| &prev[p][2..n + 2]);
+    let out = out.map(|o| &mut o[1..n + 1]);
+    let base: [u16; N] = std::array::from_fn(|p| prev_min[p] + p2[p]);
+    let mut lowest = [u16::MAX; N];
+    // All paths in one pass over the disparities, so the cost is loaded and
+    // the sum kept in registers once for all of them; the compiler turns the
+    // loop into vector code over k.
+    for k in 0..n {
+        let c = cost[k] as u16 + pad[k];
+        let mut total = if add_to_sum { sum[k] } else { 0 };
+        for p in 0..N {
+            let m = same[p][k]
+                .min(below[p][k].min(above[p][k]) + p1)
+                .min(base[p]);
+            let v = c + m - prev_min[p];
+            out[p][k] = v;
+            total = total.saturating_add(v);
+            lowest[p] = lowest[p].min(v);
+        }
+        sum[k] = total;
+    }
+    for (dst, v) in out_min.into_iter().zip(lowest) {
+        *dst = v;
     }
 }
 
@@ -713,8 +769,49 @@ fn wait_for<'a>(cell: &'a OnceLock<Vec<u16>>, failed: &AtomicBool) -> Option<&'a
 
 #[cfg(test)]
 mod tests {
-    use super::super::cost::CostVolume;
+    use super::super::volume::CostVolume;
     use super::*;
+
+    #[test]
+    fn pixel_recurrence_by_hand() {
+        let cost: Vec<u8> = (0..37).map(|k| ((k * 29) % 41) as u8).collect();
+        let big = 16383u16;
+        let mk = |seed: u16| -> Vec<u16> {
+            let mut v: Vec<u16> = (0..39).map(|k| (k as u16 * seed) % 97 + 5).collect();
+            (v[0], v[38]) = (big, big);
+            v
+        };
+        let prev = [mk(3), mk(7), mk(11), mk(13)];
+        let mins = prev.clone().map(|p| *p[1..38].iter().min().unwrap());
+        let mut outs = [
+            vec![0u16; 39],
+            vec![0u16; 39],
+            vec![0u16; 39],
+            vec![0u16; 39],
+        ];
+        let mut sum = vec![0u16; 37];
+        let [a, b, c, d] = &mut outs;
+        let mut new_mins = [0u16; 4];
+        let [m0, m1, m2, m3] = &mut new_mins;
+        sgm_pixel_body(
+            &cost,
+            &[0u16; 37],
+            [&prev[0], &prev[1], &prev[2], &prev[3]],
+            mins,
+            8,
+            [100, 90, 80, 70],
+            [a, b, c, d],
+            [m0, m1, m2, m3],
+            &mut sum,
+            false,
+        );
+        // By hand for path 0, k = 0: min(L'(0), L'(1) + P1, minL' + P2) etc.
+        let pr = &prev[0];
+        let m = pr[1].min(pr[2] + 8).min(mins[0] + 100);
+        assert_eq!(outs[0][1], cost[0] as u16 + m - mins[0]);
+        assert_eq!(new_mins[0], *outs[0][1..38].iter().min().unwrap());
+        assert_eq!(sum[5], (0..4).map(|p| outs[p][6]).sum::<u16>());
+    }
 
     /// The `n` costs of pixel (x, y) of an unpadded `[y][x][k]` volume `w` wide.
     fn pixel_costs(data: &[u8], w: usize, n: usize, x: usize, y: usize) -> Vec<u16> {

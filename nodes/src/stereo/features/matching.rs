@@ -3,7 +3,7 @@
 //! pairs, candidates restricted to the same rows (keypoints sorted by y, so the
 //! search is a binary search plus a short scan).
 
-use super::features::{Descriptors, Features, Keypoint};
+use super::{Descriptors, Features, Keypoint};
 use rayon::prelude::*;
 
 /// Settings of [`match_features`].

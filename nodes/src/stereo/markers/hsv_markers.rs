@@ -6,9 +6,9 @@
 //! centres); 3D points are in mm in the original left camera frame.
 
 use super::blobs::{MomentEllipse, components, ellipse_fit, open_close, soft_centroid};
-use super::point_from_disparity;
 use crate::calib::StereoRectification;
 use crate::camera::CameraModel;
+use crate::stereo::point_from_disparity;
 use nalgebra::{Point2, Point3};
 
 /// Hue (deg, 0..360), saturation (0..1) and value (0..1) of an RGB colour

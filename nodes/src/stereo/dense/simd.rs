@@ -3,6 +3,10 @@
 //! AVX2 + POPCNT, chosen at run time by [`Isa::detect`]. The loops are plain
 //! safe Rust over slices; only the call into the AVX2 build is `unsafe`, and
 //! only after the CPU has reported the features it needs.
+//!
+//! The lowest layer of the dense matchers: it imports none of them. A matcher
+//! whose loop needs its own types (semi-global matching's row pass) compiles
+//! it twice with [`kernels!`] in its own module.
 
 /// The instruction set the kernels run with.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -28,13 +32,15 @@ impl Isa {
 }
 
 /// Defines each kernel once as an always-inlined body, a copy compiled with
-/// AVX2 + POPCNT enabled, and an `Isa` method that picks one.
+/// AVX2 + POPCNT enabled, and an `Isa` method that picks one. Usable from any
+/// dense matcher (`use super::simd::kernels;`); the method's argument types
+/// must be visible where it is invoked.
 macro_rules! kernels {
     ($(
         $(#[$doc:meta])*
         fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)? $body:block
     )*) => {
-        impl Isa {
+        impl $crate::stereo::Isa {
             $(
                 $(#[$doc])*
                 #[inline]
@@ -54,14 +60,15 @@ macro_rules! kernels {
                         // SAFETY: `Isa::Avx2` is only made by `Isa::detect` after the
                         // CPU reported AVX2 and POPCNT, the only features `avx2`
                         // is compiled with beyond the baseline; the body is safe code.
-                        Isa::Avx2 => unsafe { avx2($($arg),*) },
-                        Isa::Scalar => generic($($arg),*),
+                        $crate::stereo::Isa::Avx2 => unsafe { avx2($($arg),*) },
+                        $crate::stereo::Isa::Scalar => generic($($arg),*),
                     }
                 }
             )*
         }
     };
 }
+pub(crate) use kernels;
 
 kernels! {
     /// One census comparison for a whole row: shifts every pixel's byte of
@@ -137,10 +144,6 @@ kernels! {
         Some((best, k, runner_up))
     }
 
-    /// One row of a semi-global aggregation pass ([`super::sgm::row_body`]).
-    fn sgm_row(job: &mut super::sgm::RowJob<'_>) {
-        super::sgm::row_body(job)
-    }
 }
 
 impl Isa {
@@ -216,61 +219,6 @@ fn window_dots_avx2(
     (total(acc0), total(acc1))
 }
 
-/// The recurrence of Hirschmüller's semi-global matching for one pixel:
-/// `L(k) = C(k) + min(L'(k), L'(k-1) + P1, L'(k+1) + P1, min L' + P2) - min L'`.
-/// For path p, `prev[p]` holds the previous pixel's path costs in lanes
-/// 1..=n (lane 0 and n + 1 are large sentinels), `prev_min[p]` their minimum;
-/// the new path costs go to lanes 1..=n of `out[p]`, their (saturating) sum
-/// over paths to `sum` (replacing it, or added to it with `add_to_sum`), and
-/// the new minima to `out_min` (each written where it is kept, rather than
-/// returned as an array: packing and unpacking that array stalled on store
-/// forwarding, a sixth of the aggregation time). `cost` has the n
-/// matching costs; `pad` is added to every new cost (0, or a sentinel for
-/// lanes past the disparity count, which then never win).
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn sgm_pixel_body<const N: usize>(
-    cost: &[u8],
-    pad: &[u16],
-    prev: [&[u16]; N],
-    prev_min: [u16; N],
-    p1: u16,
-    p2: [u16; N],
-    out: [&mut [u16]; N],
-    out_min: [&mut u16; N],
-    sum: &mut [u16],
-    add_to_sum: bool,
-) {
-    let n = cost.len();
-    let (cost, pad, sum) = (&cost[..n], &pad[..n], &mut sum[..n]);
-    let below: [&[u16]; N] = std::array::from_fn(|p| &prev[p][0..n]);
-    let same: [&[u16]; N] = std::array::from_fn(|p| &prev[p][1..n + 1]);
-    let above: [&[u16]; N] = std::array::from_fn(|p| &prev[p][2..n + 2]);
-    let out = out.map(|o| &mut o[1..n + 1]);
-    let base: [u16; N] = std::array::from_fn(|p| prev_min[p] + p2[p]);
-    let mut lowest = [u16::MAX; N];
-    // All paths in one pass over the disparities, so the cost is loaded and
-    // the sum kept in registers once for all of them; the compiler turns the
-    // loop into vector code over k.
-    for k in 0..n {
-        let c = cost[k] as u16 + pad[k];
-        let mut total = if add_to_sum { sum[k] } else { 0 };
-        for p in 0..N {
-            let m = same[p][k]
-                .min(below[p][k].min(above[p][k]) + p1)
-                .min(base[p]);
-            let v = c + m - prev_min[p];
-            out[p][k] = v;
-            total = total.saturating_add(v);
-            lowest[p] = lowest[p].min(v);
-        }
-        sum[k] = total;
-    }
-    for (dst, v) in out_min.into_iter().zip(lowest) {
-        *dst = v;
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -278,44 +226,6 @@ mod tests {
     #[test]
     fn kernels_by_hand() {
         let isa = Isa::detect();
-        let cost: Vec<u8> = (0..37).map(|k| ((k * 29) % 41) as u8).collect();
-        let big = 16383u16;
-        let mk = |seed: u16| -> Vec<u16> {
-            let mut v: Vec<u16> = (0..39).map(|k| (k as u16 * seed) % 97 + 5).collect();
-            (v[0], v[38]) = (big, big);
-            v
-        };
-        let prev = [mk(3), mk(7), mk(11), mk(13)];
-        let mins = prev.clone().map(|p| *p[1..38].iter().min().unwrap());
-        let mut outs = [
-            vec![0u16; 39],
-            vec![0u16; 39],
-            vec![0u16; 39],
-            vec![0u16; 39],
-        ];
-        let mut sum = vec![0u16; 37];
-        let [a, b, c, d] = &mut outs;
-        let mut new_mins = [0u16; 4];
-        let [m0, m1, m2, m3] = &mut new_mins;
-        sgm_pixel_body(
-            &cost,
-            &[0u16; 37],
-            [&prev[0], &prev[1], &prev[2], &prev[3]],
-            mins,
-            8,
-            [100, 90, 80, 70],
-            [a, b, c, d],
-            [m0, m1, m2, m3],
-            &mut sum,
-            false,
-        );
-        // By hand for path 0, k = 0: min(L'(0), L'(1) + P1, minL' + P2) etc.
-        let pr = &prev[0];
-        let m = pr[1].min(pr[2] + 8).min(mins[0] + 100);
-        assert_eq!(outs[0][1], cost[0] as u16 + m - mins[0]);
-        assert_eq!(new_mins[0], *outs[0][1..38].iter().min().unwrap());
-        assert_eq!(sum[5], (0..4).map(|p| outs[p][6]).sum::<u16>());
-
         let mut bits = vec![0b1u8; 5];
         isa.census_bits(&mut bits, &[1, 5, 3, 9, 0], &[2, 2, 2, 2, 2]);
         assert_eq!(bits, [0b11, 0b10, 0b10, 0b10, 0b11]);

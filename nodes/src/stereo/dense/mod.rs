@@ -1,0 +1,35 @@
+//! Dense matching of a rectified grey pair: matching costs (census,
+//! Birchfield-Tomasi), semi-global aggregation or local block matching, the
+//! selection of one disparity per pixel, and the filters after it (speckles,
+//! texture, intensity refinement).
+//!
+//! Layers, each importing only those below it: [`simd`] (the kernels, run
+//! with the CPU's best instruction set), `pair` (the checked pair and
+//! disparity range), `volume` (the cost layout), `cost` and `select`,
+//! `sgm` and `block_match`, and `sgm_disparity` (the whole SGM pipeline).
+
+mod block_match;
+mod cost;
+mod figure;
+mod filter;
+mod pair;
+mod refine;
+mod select;
+mod sgm;
+mod sgm_disparity;
+mod simd;
+mod texture;
+mod volume;
+
+pub use block_match::{BlockCost, block_match};
+pub use cost::{CensusCosts, bt_costs, census_costs, census_transform};
+pub(crate) use figure::disparity_figure_png;
+pub use filter::filter_speckles;
+pub use pair::{DisparityRange, GreyImage, check_pair};
+pub use refine::{MAX_SIDE, RefineParams, refine_disparity};
+pub use select::{SelectParams, select};
+pub use sgm::{Aggregated, Paths, SgmParams, aggregate};
+pub use sgm_disparity::{MatchCost, SgmConfig, sgm_disparity, speckle_size_px};
+pub use simd::Isa;
+pub use texture::{flat_windows, noise_sigma};
+pub use volume::{CostRows, CostVolume};

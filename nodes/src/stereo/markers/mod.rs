@@ -1,0 +1,16 @@
+//! Coloured markers in a stereo pair: colour thresholds in HSV, blobs cleaned
+//! by morphology and filtered by area and ellipse shape, sub-pixel centroids,
+//! left-right pairs along the rectified rows, and their triangulation.
+
+mod blobs;
+mod figure;
+mod hsv_markers;
+mod hue_param;
+
+pub use blobs::{MomentEllipse, components, dilate, ellipse_fit, erode, open_close, soft_centroid};
+pub(crate) use figure::detections_png;
+pub use hsv_markers::{
+    Blob, BlobParams, PairParams, StereoMarker, StereoMarkers, colour_mask, find_blobs, hsv,
+    hue_score, pair_blobs, stereo_markers, stereo_markers_unrectified,
+};
+pub(crate) use hue_param::hue_range;

@@ -3,15 +3,17 @@
 //! `lm.rs`), stereo calibration and rectification.
 
 mod camera_calibration;
+mod conversions;
 mod detect;
 mod homography;
 mod lm;
 mod normal_equations;
-mod ops;
+pub mod ops;
 mod rectify;
 mod reprojection;
 mod stereo;
 mod subpixel;
+mod tables;
 mod views;
 mod zhang;
 
@@ -34,16 +36,15 @@ pub use zhang::{intrinsics_from_homographies, pose_from_homography};
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;
-use std::sync::Arc;
 
-pub(crate) use ops::{rectification_of, rig_isometry};
+pub(crate) use conversions::{rectification_of, rig_isometry};
 
 /// Registers the `calib.*` ops.
 pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
-    registry.register(Arc::new(ops::FindChessboardOp::new()))?;
-    registry.register(Arc::new(ops::CalibrateCameraOp::new()))?;
-    registry.register(Arc::new(ops::StereoCalibrateOp::new()))?;
-    registry.register(Arc::new(ops::RectifyOp::new()))?;
-    registry.register(Arc::new(ops::RemapOp::new()))?;
+    registry.add::<ops::FindChessboard>()?;
+    registry.add::<ops::CalibrateCamera>()?;
+    registry.add::<ops::StereoCalibrate>()?;
+    registry.add::<ops::Rectify>()?;
+    registry.add::<ops::Remap>()?;
     Ok(())
 }

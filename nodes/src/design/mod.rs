@@ -2,9 +2,11 @@
 //! field, verging angle, and the Monte Carlo study of triangulation reliability
 //! against baseline.
 
+mod figures;
 mod monte_carlo;
-mod ops;
+pub mod ops;
 mod optics;
+mod tables;
 
 pub use monte_carlo::{BaselineStudy, StudyParams, VarianceRow, baseline_study, triangulate_dlt};
 pub use optics::{
@@ -14,13 +16,12 @@ pub use optics::{
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;
-use std::sync::Arc;
 
 /// Registers the `design.*` ops.
 pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
-    registry.register(Arc::new(ops::FocalLengthOp::new()))?;
-    registry.register(Arc::new(ops::DepthOfFieldOp::new()))?;
-    registry.register(Arc::new(ops::VergingAngleOp::new()))?;
-    registry.register(Arc::new(ops::MonteCarloOp::new()))?;
+    registry.add::<ops::FocalLength>()?;
+    registry.add::<ops::DepthOfField>()?;
+    registry.add::<ops::VergingAngle>()?;
+    registry.add::<ops::BaselineMonteCarlo>()?;
     Ok(())
 }

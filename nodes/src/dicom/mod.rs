@@ -18,7 +18,7 @@
 mod frames;
 mod header;
 mod layout;
-mod ops;
+pub mod ops;
 mod series;
 
 pub use frames::{FileContent, Frame, read_file, read_frames};
@@ -32,9 +32,8 @@ pub use series::{LoadedSeries, MAX_NAMED_SKIPS, SeriesError, assemble, load_seri
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;
-use std::sync::Arc;
 
 /// Registers the `dicom.*` ops.
 pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
-    registry.register(Arc::new(ops::LoadSeriesOp::new()))
+    registry.add::<ops::LoadSeries>()
 }

@@ -1,11 +1,10 @@
-//! `math.binary`: one arithmetic operation on two numbers.
+//! One arithmetic operation on two numbers.
 
-use fusegraph_engine::{
-    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, RunCtx, ValueType,
-};
+use fusegraph_plugin_api::derive::Choice;
 
-/// An operation on two numbers `a` and `b`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// An operation on two numbers `a` and `b` (by its name in graph files:
+/// `add`, `sub`, `mul`, `div`, `pow`, `min`, `max`, `atan2_deg`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Choice)]
 pub enum BinaryOp {
     /// a + b
     Add,
@@ -23,32 +22,22 @@ pub enum BinaryOp {
     Max,
     /// atan2(a, b) in degrees: the angle subtended by an opposite side a at an
     /// adjacent side b (e.g. a verging angle from a baseline and a distance).
+    #[choice(name = "atan2_deg")]
     Atan2Deg,
 }
 
-impl BinaryOp {
-    /// Every operation, by its name in graph files.
-    pub const NAMES: &'static [(&'static str, BinaryOp)] = &[
-        ("add", BinaryOp::Add),
-        ("sub", BinaryOp::Sub),
-        ("mul", BinaryOp::Mul),
-        ("div", BinaryOp::Div),
-        ("pow", BinaryOp::Pow),
-        ("min", BinaryOp::Min),
-        ("max", BinaryOp::Max),
-        ("atan2_deg", BinaryOp::Atan2Deg),
-    ];
-
-    /// The operation called `name`.
-    pub fn from_name(name: &str) -> Option<BinaryOp> {
-        Self::NAMES
-            .iter()
-            .find(|(n, _)| *n == name)
-            .map(|&(_, op)| op)
-    }
-}
-
 /// Applies `op` to `a` and `b`; an undefined or non-finite result is an error.
+///
+/// # Examples
+///
+/// ```
+/// use fusegraph_nodes::math::{BinaryOp, apply_binary};
+///
+/// // The paper's verging angle: atan(55 mm / 400 mm), in degrees.
+/// let theta = apply_binary(BinaryOp::Atan2Deg, 55.0, 400.0).unwrap();
+/// assert!((theta - 7.82908).abs() < 1e-5);
+/// assert!(apply_binary(BinaryOp::Div, 1.0, 0.0).is_err());
+/// ```
 pub fn apply_binary(op: BinaryOp, a: f64, b: f64) -> Result<f64, String> {
     let result = match op {
         BinaryOp::Add => a + b,
@@ -68,48 +57,10 @@ pub fn apply_binary(op: BinaryOp, a: f64, b: f64) -> Result<f64, String> {
     }
 }
 
-pub(crate) struct BinaryNode(OpSpec);
-
-impl BinaryNode {
-    pub(crate) fn new() -> Self {
-        let names: Vec<&str> = BinaryOp::NAMES.iter().map(|(n, _)| *n).collect();
-        BinaryNode(
-            OpSpec::new(
-                "math.binary",
-                1,
-                "One arithmetic operation on two numbers a and b",
-            )
-            .input("a", &[ValueType::Scalar], "First operand")
-            .input("b", &[ValueType::Scalar], "Second operand")
-            .param(ParamSpec::choice(
-                "operation",
-                &names,
-                "add, sub, mul, div, pow, min, max, or atan2_deg (atan2(a, b) in degrees)",
-            ))
-            .output("value", ValueType::Scalar, "The result"),
-        )
-    }
-}
-
-impl Op for BinaryNode {
-    fn spec(&self) -> &OpSpec {
-        &self.0
-    }
-
-    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
-        let name = params.string("operation")?;
-        let op = BinaryOp::from_name(&name)
-            .ok_or_else(|| OpError::invalid(format!("unknown operation {name}")))?;
-        let (a, b) = (*inputs.get::<f64>("a")?, *inputs.get::<f64>("b")?);
-        let value = apply_binary(op, a, b).map_err(OpError::invalid)?;
-        ctx.metric("value", value);
-        Ok(Outputs::new().with("value", value))
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use fusegraph_plugin_api::typed::{ParamRef, ParamType};
 
     #[test]
     fn arithmetic_matches_hand_computed_values() {
@@ -135,9 +86,14 @@ mod tests {
 
     #[test]
     fn every_name_parses() {
-        for (name, op) in BinaryOp::NAMES {
-            assert_eq!(BinaryOp::from_name(name), Some(*op));
+        assert_eq!(
+            BinaryOp::NAMES,
+            ["add", "sub", "mul", "div", "pow", "min", "max", "atan2_deg"]
+        );
+        for name in BinaryOp::NAMES {
+            let op = BinaryOp::from_param(ParamRef::Str(name)).unwrap();
+            assert_eq!(op.name(), name);
         }
-        assert_eq!(BinaryOp::from_name("modulo"), None);
+        assert!(BinaryOp::from_param(ParamRef::Str("modulo")).is_err());
     }
 }

@@ -3,17 +3,16 @@
 //! graph without code.
 
 mod binary;
-mod constant;
+pub mod ops;
 
 pub use binary::{BinaryOp, apply_binary};
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;
-use std::sync::Arc;
 
 /// Registers the `math.*` ops.
 pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
-    registry.register(Arc::new(constant::ConstantOp::new()))?;
-    registry.register(Arc::new(binary::BinaryNode::new()))?;
+    registry.add::<ops::Constant>()?;
+    registry.add::<ops::Binary>()?;
     Ok(())
 }

@@ -2,22 +2,20 @@
 //! with the bundled DejaVu Sans, so no system font library is needed); and the
 //! pictures other ops attach to the report.
 
+pub mod ops;
 mod overlay;
 pub use overlay::{mask_over_slice, overlay_panels};
 
+use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;
 use fusegraph_engine::value::Table;
-use fusegraph_engine::{
-    Inputs, Op, OpError, OpSpec, Outputs, ParamSpec, Params, Registry, RunCtx, ValueType,
-    path_value,
-};
 use plotters::prelude::*;
 use std::path::Path;
-use std::sync::{Arc, Once};
+use std::sync::Once;
 
 /// Registers the `plot.*` ops.
 pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
-    registry.register(Arc::new(LinesOp::new()))
+    registry.add::<ops::Lines>()
 }
 
 /// What to draw.
@@ -175,90 +173,6 @@ pub fn lines_png(table: &Table, plot: &LinePlot) -> Result<Vec<u8>, String> {
         root.present().map_err(|e| e.to_string())?;
     }
     png_bytes(&pixels, w as usize, h as usize)
-}
-
-struct LinesOp(OpSpec);
-
-impl LinesOp {
-    fn new() -> Self {
-        LinesOp(
-            OpSpec::new(
-                "plot.lines",
-                1,
-                "Line plot (PNG) of table columns against one column",
-            )
-            .input("table", &[ValueType::Table], "The table")
-            .param(ParamSpec::string(
-                "x",
-                "",
-                "Column on the x axis (default: the first)",
-            ))
-            .param(ParamSpec::string_list(
-                "y",
-                &[],
-                "Columns drawn as lines (default: all others)",
-            ))
-            .param(ParamSpec::string("title", "", "Title"))
-            .param(ParamSpec::string(
-                "x_label",
-                "",
-                "x axis label (default: the column name)",
-            ))
-            .param(ParamSpec::string("y_label", "", "y axis label"))
-            .param(ParamSpec::bool("log_x", false, "Logarithmic x axis"))
-            .param(ParamSpec::bool("log_y", false, "Logarithmic y axis"))
-            .param(
-                ParamSpec::int_list("size_px", &[800, 560], "px", "Width and height")
-                    .range(100.0, 8000.0)
-                    .length(2),
-            )
-            .param(ParamSpec::string(
-                "file",
-                "plot.png",
-                "PNG file, relative to the output folder",
-            ))
-            .output("file", ValueType::Path, "The PNG")
-            .writes_output(),
-        )
-    }
-}
-
-impl Op for LinesOp {
-    fn spec(&self) -> &OpSpec {
-        &self.0
-    }
-    fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError> {
-        let t = inputs.get::<Table>("table")?;
-        let x = match params.string("x")? {
-            x if x.is_empty() => t.columns[0].clone(),
-            x => x,
-        };
-        let y = match params.string_list("y")? {
-            y if y.is_empty() => t.columns.iter().filter(|c| **c != x).cloned().collect(),
-            y => y,
-        };
-        let size = params.int_list("size_px")?;
-        let &[w, h] = size.as_slice() else {
-            return Err(OpError::invalid("size_px takes two numbers"));
-        };
-        let plot = LinePlot {
-            x_label: match params.string("x_label")? {
-                l if l.is_empty() => x.clone(),
-                l => l,
-            },
-            x,
-            y,
-            title: params.string("title")?,
-            y_label: params.string("y_label")?,
-            log_x: params.bool("log_x")?,
-            log_y: params.bool("log_y")?,
-            size_px: (w as u32, h as u32),
-        };
-        let path = ctx.output_path(&params.string("file")?)?;
-        draw_lines(&t, &plot, &path)
-            .map_err(|e| OpError::invalid(format!("{}: {e}", path.display())))?;
-        Ok(Outputs::new().with("file", path_value(&path)?))
-    }
 }
 
 #[cfg(test)]

@@ -1,0 +1,67 @@
+//! `calib.calibrate_camera`: one camera from the boards of its photos.
+
+use super::SolverParams;
+use crate::calib::tables::boards_from_table;
+use crate::calib::{BoardView, calibrate_camera, usual_size};
+use fusegraph_engine::typed::prelude::*;
+use fusegraph_engine::value::{Camera, Table};
+
+/// Zhang calibration refined by Levenberg-Marquardt -> Camera
+#[derive(Op)]
+// 3: analytic Jacobians, stopped on the exact minimum.
+#[op(name = "calib.calibrate_camera", version = 3)]
+pub struct CalibrateCamera {
+    #[param(flatten)]
+    pub solver: SolverParams,
+}
+
+#[derive(Inputs)]
+pub struct CalibrateCameraInputs {
+    /// Corners from calib.find_chessboard
+    pub corners: Arc<Table>,
+}
+
+#[derive(Outputs)]
+pub struct CalibrateCameraOutputs {
+    /// Intrinsics (px) and distortion
+    pub camera: Camera,
+}
+
+impl RunOp for CalibrateCamera {
+    type Inputs = CalibrateCameraInputs;
+    type Outputs = CalibrateCameraOutputs;
+
+    fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
+        let mut boards = boards_from_table(&inputs.corners)?;
+        let sizes = boards.iter().map(|(v, b)| (*v, b.1)).collect();
+        let ((w, h), odd) = usual_size(&sizes);
+        for v in odd {
+            let (ow, oh) = sizes[&v];
+            ctx.note(format!(
+                "view {v}: the photo is {ow} x {oh} px, the others {w} x {h}: left out"
+            ));
+            boards.remove(&v);
+        }
+        let ids: Vec<u32> = boards.keys().copied().collect();
+        let views: Vec<BoardView> = boards.into_values().map(|b| b.0).collect();
+        let c = calibrate_camera(&views, w, h, self.solver.distortion_mask()?)
+            .map_err(OpError::invalid)?;
+        ctx.metric("rms_px", c.rms_px);
+        ctx.metric("views", views.len() as f64);
+        ctx.metric("iterations", c.iterations as f64);
+        if !c.converged {
+            ctx.note(format!(
+                "the solver stopped after {} iterations short of the minimum: check the corners",
+                c.iterations
+            ));
+        }
+        for (id, e) in ids.iter().zip(&c.view_rms_px) {
+            ctx.metric(&format!("view_{id}_rms_px"), *e);
+        }
+        self.solver
+            .check_rms("camera", c.rms_px, &ids, &c.view_rms_px)?;
+        Ok(CalibrateCameraOutputs {
+            camera: c.camera.to_value(),
+        })
+    }
+}

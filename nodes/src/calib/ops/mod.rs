@@ -1,0 +1,78 @@
+//! The `calib.*` ops: one file per op, each its declaration and thin adapter.
+
+mod calibrate_camera;
+mod find_chessboard;
+mod rectify;
+mod remap;
+mod stereo_calibrate;
+
+pub use calibrate_camera::{CalibrateCamera, CalibrateCameraInputs, CalibrateCameraOutputs};
+pub use find_chessboard::{FindChessboard, FindChessboardInputs, FindChessboardOutputs};
+pub use rectify::{Rectify, RectifyInputs, RectifyOutputs};
+pub use remap::{Remap, RemapInputs, RemapOutputs, RemapSide};
+pub use stereo_calibrate::{StereoCalibrate, StereoCalibrateInputs, StereoCalibrateOutputs};
+
+use super::DISTORTION_NAMES;
+use fusegraph_engine::OpError;
+use fusegraph_engine::typed::prelude::*;
+
+/// The solver parameters shared by `calib.calibrate_camera` and
+/// `calib.stereo_calibrate`.
+#[derive(Params)]
+pub struct SolverParams {
+    /// Distortion coefficients to estimate (others 0)
+    #[param(default = ["k1", "k2", "p1", "p2"])]
+    pub free: Vec<String>,
+    /// Fail when the RMS reprojection error exceeds this (a garbage calibration)
+    #[param(default = 2.0, unit = "px", min = 0.0)]
+    pub max_rms_px: f64,
+}
+
+impl SolverParams {
+    /// Which of k1, k2, p1, p2, k3 are estimated; an unknown name is an error.
+    pub fn distortion_mask(&self) -> Result<[bool; 5], OpError> {
+        for f in &self.free {
+            if !DISTORTION_NAMES.contains(&f.as_str()) {
+                return Err(OpError::invalid(format!(
+                    "free: unknown coefficient {f:?}; use {}",
+                    DISTORTION_NAMES.join(", ")
+                )));
+            }
+        }
+        Ok(std::array::from_fn(|i| {
+            self.free.iter().any(|f| f == DISTORTION_NAMES[i])
+        }))
+    }
+
+    /// Refuses a calibration whose reprojection error (`rms_px`, px) says it
+    /// is garbage (a mispaired or mis-detected view), naming the worst of
+    /// `views` by their `view_rms_px`.
+    pub fn check_rms(
+        &self,
+        what: &str,
+        rms_px: f64,
+        views: &[u32],
+        view_rms_px: &[f64],
+    ) -> Result<(), OpError> {
+        let max_rms_px = self.max_rms_px;
+        if rms_px.is_finite() && rms_px <= max_rms_px {
+            return Ok(());
+        }
+        let mut worst: Vec<(f64, u32)> = view_rms_px
+            .iter()
+            .copied()
+            .zip(views.iter().copied())
+            .collect();
+        worst.sort_by(|a, b| b.0.total_cmp(&a.0));
+        let listed: Vec<String> = worst
+            .iter()
+            .take(3)
+            .map(|(e, v)| format!("view {v} {e:.2} px"))
+            .collect();
+        Err(OpError::invalid(format!(
+            "{what} RMS reprojection error {rms_px:.3} px is above max_rms_px = {max_rms_px} px: \
+             a view is probably mispaired or its board mis-detected (worst: {})",
+            listed.join(", ")
+        )))
+    }
+}

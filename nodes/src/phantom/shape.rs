@@ -244,6 +244,23 @@ impl PhantomShape {
     /// Builds the phantom: the ellipsoid is sized so its part above z = 0 has the
     /// requested base width, depth and height; markers are laid out in two rings
     /// with seeded jitter (so the layout has no symmetry).
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use fusegraph_nodes::phantom::{PhantomShape, ShapeParams};
+    /// use rand::SeedableRng;
+    ///
+    /// let p = ShapeParams { marker_count: 6, ..ShapeParams::default() };
+    /// let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+    /// let shape = PhantomShape::build(&p, &mut rng).unwrap();
+    /// assert_eq!(shape.markers.len(), 6);
+    /// // The default lesions, 6 mm across.
+    /// assert_eq!(shape.lesions.len(), 3);
+    /// assert!(shape.lesions.iter().all(|l| l.radius_mm == 3.0));
+    /// // Markers sit on the dome: their coloured faces above the base.
+    /// assert!(shape.markers.iter().all(|m| m.face_center().z > 0.0));
+    /// ```
     pub fn build(p: &ShapeParams, rng: &mut impl Rng) -> Result<Self, String> {
         if p.width_mm <= 0.0 || p.depth_mm <= 0.0 || p.height_mm <= 0.0 {
             return Err("phantom sizes must be positive".into());

@@ -122,6 +122,37 @@ fn memory_bytes(config: &SgmConfig, cells: usize) -> usize {
 }
 
 /// Disparities (px, NaN = invalid) of the left image of a rectified pair.
+///
+/// # Examples
+///
+/// A random texture that the right image sees 6 px further left: the
+/// disparity is 6 px (to half a pixel; pixel noise leaves no better
+/// sub-pixel fit) wherever the match is valid.
+///
+/// ```
+/// use fusegraph_nodes::stereo::{DisparityRange, GreyImage, SgmConfig, sgm_disparity};
+///
+/// let (w, h) = (64, 32);
+/// // Grey levels hashed from the position (splitmix64): nothing repeats.
+/// let texture = |x: usize, y: usize| {
+///     let mut z = ((y * 1000 + x) as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+///     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+///     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+///     ((z ^ (z >> 31)) >> 56) as u8
+/// };
+/// let image = |shift: usize| GreyImage {
+///     width: w,
+///     height: h,
+///     data: (0..w * h).map(|i| texture(i % w + shift, i / w)).collect(),
+/// };
+/// let (left, right) = (image(0), image(6));
+/// let range = DisparityRange::new(0, 15, w).unwrap();
+/// let d = sgm_disparity(&left, &right, range, &SgmConfig::default()).unwrap();
+/// let valid: Vec<f32> = d.into_iter().filter(|d| !d.is_nan()).collect();
+/// assert!(valid.len() > w * h / 2, "{} valid", valid.len());
+/// let six = valid.iter().filter(|d| (*d - 6.0).abs() < 0.5).count();
+/// assert!(six * 100 >= valid.len() * 98, "{six} of {}", valid.len());
+/// ```
 pub fn sgm_disparity(
     left: &GreyImage,
     right: &GreyImage,

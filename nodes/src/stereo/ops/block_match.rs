@@ -29,7 +29,7 @@ impl RunOp for BlockMatch {
         let m = &self.matcher;
         let range = m.range(inputs.min_disparity, inputs.max_disparity, left.width)?;
         let window = self.window;
-        if window % 2 == 0 {
+        if window.is_multiple_of(2) {
             return Err(OpError::invalid(format!("window = {window}: must be odd")));
         }
         let refine = m.refine()?;

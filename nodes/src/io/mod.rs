@@ -11,7 +11,7 @@ mod markers;
 mod meshes;
 mod opencv_yaml;
 pub mod ops;
-mod path_values;
+mod disk_size;
 mod source_file;
 mod tables;
 mod volumes;

@@ -1,6 +1,7 @@
 //! `io.path`: a file or folder on disk as a `Path` value, keyed by its content.
 
-use crate::io::path_values::{dir_size, path_of};
+use crate::io::disk_size::dir_size;
+use fusegraph_engine::path_value;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::PathValue;
 use std::path::PathBuf;
@@ -19,7 +20,7 @@ pub struct DiskPathInputs;
 #[derive(Outputs)]
 pub struct DiskPathOutputs {
     /// The file or folder, identified by its content
-    pub path: Arc<PathValue>,
+    pub path: PathValue,
 }
 
 impl RunOp for DiskPath {
@@ -27,7 +28,7 @@ impl RunOp for DiskPath {
     type Outputs = DiskPathOutputs;
 
     fn run(&self, _: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
-        let value = path_of(&self.path)?;
+        let value = path_value(&self.path)?;
         let bytes = dir_size(&self.path).map_err(|e| OpError::io(&self.path, e))?;
         ctx.metric("bytes", bytes as f64);
         Ok(DiskPathOutputs { path: value })

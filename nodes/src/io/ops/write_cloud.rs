@@ -1,6 +1,6 @@
 //! `io.write_cloud`: one or two point clouds as one coloured binary PLY.
 
-use crate::io::path_values::path_of;
+use fusegraph_engine::path_value;
 use crate::io::write_ply;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{PathValue, PointCloud};
@@ -31,7 +31,7 @@ pub struct WriteCloudInputs {
 #[derive(Outputs)]
 pub struct WriteCloudOutputs {
     /// The PLY
-    pub file: Arc<PathValue>,
+    pub file: PathValue,
 }
 
 impl RunOp for WriteCloud {
@@ -73,7 +73,7 @@ impl RunOp for WriteCloud {
         )
         .map_err(|e| OpError::io(&path, e))?;
         Ok(WriteCloudOutputs {
-            file: path_of(&path)?,
+            file: path_value(&path)?,
         })
     }
 }

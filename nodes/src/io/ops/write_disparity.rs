@@ -1,7 +1,7 @@
 //! `io.write_disparity`: a disparity map as a colour-mapped PNG with a legend
 //! in px, and as PFM.
 
-use crate::io::path_values::path_of;
+use fusegraph_engine::path_value;
 use crate::io::{disparity_png, encode_pfm, finite_percentiles};
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Disparity, PathValue};
@@ -30,9 +30,9 @@ pub struct WriteDisparityInputs {
 #[derive(Outputs)]
 pub struct WriteDisparityOutputs {
     /// The colour-mapped PNG (unknown = black)
-    pub png: Arc<PathValue>,
+    pub png: PathValue,
     /// The PFM (little endian, unknown = inf)
-    pub pfm: Arc<PathValue>,
+    pub pfm: PathValue,
 }
 
 impl RunOp for WriteDisparity {
@@ -64,8 +64,8 @@ impl RunOp for WriteDisparity {
         ctx.metric("min_px", range.0);
         ctx.metric("max_px", range.1);
         Ok(WriteDisparityOutputs {
-            png: path_of(&png)?,
-            pfm: path_of(&pfm)?,
+            png: path_value(&png)?,
+            pfm: path_value(&pfm)?,
         })
     }
 }

@@ -1,7 +1,7 @@
 //! `io.write_json`: a small value (a number, table, transform, markers,
 //! camera, rig) as JSON under the output folder.
 
-use crate::io::path_values::path_of;
+use fusegraph_engine::path_value;
 use crate::io::value_to_json;
 use fusegraph_engine::Value;
 use fusegraph_engine::typed::prelude::*;
@@ -35,7 +35,7 @@ pub struct WriteJsonInputs {
 #[derive(Outputs)]
 pub struct WriteJsonOutputs {
     /// The written file
-    pub file: Arc<PathValue>,
+    pub file: PathValue,
 }
 
 impl RunOp for WriteJson {
@@ -47,7 +47,7 @@ impl RunOp for WriteJson {
         let text = serde_json::to_string_pretty(&value_to_json(&inputs.value)).expect("JSON value");
         std::fs::write(&path, text + "\n").map_err(|e| OpError::io(&path, e))?;
         Ok(WriteJsonOutputs {
-            file: path_of(&path)?,
+            file: path_value(&path)?,
         })
     }
 }

@@ -1,7 +1,7 @@
 //! `io.write_markers`: marker centres as a 3D Slicer markups file (`.mrk.json`,
 //! LPS) and as CSV.
 
-use crate::io::path_values::path_of;
+use fusegraph_engine::path_value;
 use crate::io::{markers_csv, slicer_markups};
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Markers, PathValue};
@@ -24,9 +24,9 @@ pub struct WriteMarkersInputs {
 #[derive(Outputs)]
 pub struct WriteMarkersOutputs {
     /// The .mrk.json file
-    pub markups: Arc<PathValue>,
+    pub markups: PathValue,
     /// The .csv file
-    pub csv: Arc<PathValue>,
+    pub csv: PathValue,
 }
 
 impl RunOp for WriteMarkers {
@@ -45,8 +45,8 @@ impl RunOp for WriteMarkers {
         let csv_path = ctx.output_path(&format!("{name}.csv"))?;
         std::fs::write(&csv_path, markers_csv(&markers)).map_err(|e| OpError::io(&csv_path, e))?;
         Ok(WriteMarkersOutputs {
-            markups: path_of(&json_path)?,
-            csv: path_of(&csv_path)?,
+            markups: path_value(&json_path)?,
+            csv: path_value(&csv_path)?,
         })
     }
 }

@@ -1,6 +1,6 @@
 //! `io.write_mesh`: a mesh as binary PLY or STL, by the file's extension.
 
-use crate::io::path_values::path_of;
+use fusegraph_engine::path_value;
 use crate::io::{write_ply, write_stl};
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Mesh, PathValue};
@@ -23,7 +23,7 @@ pub struct WriteMeshInputs {
 #[derive(Outputs)]
 pub struct WriteMeshOutputs {
     /// The written file
-    pub file: Arc<PathValue>,
+    pub file: PathValue,
 }
 
 impl RunOp for WriteMesh {
@@ -55,7 +55,7 @@ impl RunOp for WriteMesh {
         }
         .map_err(|e| OpError::io(&path, e))?;
         Ok(WriteMeshOutputs {
-            file: path_of(&path)?,
+            file: path_value(&path)?,
         })
     }
 }

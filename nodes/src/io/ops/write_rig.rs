@@ -1,6 +1,6 @@
 //! `io.write_rig`: a stereo rig as JSON and as an OpenCV FileStorage YAML file.
 
-use crate::io::path_values::path_of;
+use fusegraph_engine::path_value;
 use crate::io::rig_yaml;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{PathValue, StereoRig};
@@ -23,9 +23,9 @@ pub struct WriteRigInputs {
 #[derive(Outputs)]
 pub struct WriteRigOutputs {
     /// The JSON file
-    pub json: Arc<PathValue>,
+    pub json: PathValue,
     /// The YAML file
-    pub yaml: Arc<PathValue>,
+    pub yaml: PathValue,
 }
 
 impl RunOp for WriteRig {
@@ -40,8 +40,8 @@ impl RunOp for WriteRig {
         let yaml = ctx.output_path(&format!("{name}.yml"))?;
         std::fs::write(&yaml, rig_yaml(&rig)).map_err(|e| OpError::io(&yaml, e))?;
         Ok(WriteRigOutputs {
-            json: path_of(&json)?,
-            yaml: path_of(&yaml)?,
+            json: path_value(&json)?,
+            yaml: path_value(&yaml)?,
         })
     }
 }

@@ -1,7 +1,7 @@
 //! `io.write_stereo_pair`: a rectified pair side by side as PNG, with
 //! horizontal lines to check rectification by eye.
 
-use crate::io::path_values::path_of;
+use fusegraph_engine::path_value;
 use crate::io::side_by_side;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Image, PathValue};
@@ -29,7 +29,7 @@ pub struct WriteStereoPairInputs {
 #[derive(Outputs)]
 pub struct WriteStereoPairOutputs {
     /// The PNG
-    pub file: Arc<PathValue>,
+    pub file: PathValue,
 }
 
 impl RunOp for WriteStereoPair {
@@ -49,7 +49,7 @@ impl RunOp for WriteStereoPair {
         )
         .map_err(|e| OpError::invalid(format!("{}: {e}", path.display())))?;
         Ok(WriteStereoPairOutputs {
-            file: path_of(&path)?,
+            file: path_value(&path)?,
         })
     }
 }

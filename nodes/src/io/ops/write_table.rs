@@ -1,6 +1,6 @@
 //! `io.write_table`: a table as CSV and as a Markdown table.
 
-use crate::io::path_values::path_of;
+use fusegraph_engine::path_value;
 use crate::io::{table_csv, table_markdown};
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{PathValue, Table};
@@ -26,9 +26,9 @@ pub struct WriteTableInputs {
 #[derive(Outputs)]
 pub struct WriteTableOutputs {
     /// The CSV file
-    pub csv: Arc<PathValue>,
+    pub csv: PathValue,
     /// The Markdown file
-    pub markdown: Arc<PathValue>,
+    pub markdown: PathValue,
 }
 
 impl RunOp for WriteTable {
@@ -42,8 +42,8 @@ impl RunOp for WriteTable {
         let md = ctx.output_path(&format!("{name}.md"))?;
         std::fs::write(&md, table_markdown(&t, self.digits)).map_err(|e| OpError::io(&md, e))?;
         Ok(WriteTableOutputs {
-            csv: path_of(&csv)?,
-            markdown: path_of(&md)?,
+            csv: path_value(&csv)?,
+            markdown: path_value(&md)?,
         })
     }
 }

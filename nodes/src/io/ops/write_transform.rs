@@ -2,7 +2,7 @@
 //! (for 3D Slicer).
 
 use crate::io::itk_transform_text;
-use crate::io::path_values::path_of;
+use fusegraph_engine::path_value;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{PathValue, Transform};
 
@@ -27,9 +27,9 @@ pub struct WriteTransformInputs {
 #[derive(Outputs)]
 pub struct WriteTransformOutputs {
     /// The JSON file
-    pub json: Arc<PathValue>,
+    pub json: PathValue,
     /// The ITK file (inverse matrix: fixed -> moving)
-    pub itk: Arc<PathValue>,
+    pub itk: PathValue,
 }
 
 impl RunOp for WriteTransform {
@@ -62,8 +62,8 @@ impl RunOp for WriteTransform {
             .ok_or_else(|| OpError::invalid("the transform is singular"))?;
         std::fs::write(&itk, text).map_err(|e| OpError::io(&itk, e))?;
         Ok(WriteTransformOutputs {
-            json: path_of(&json)?,
-            itk: path_of(&itk)?,
+            json: path_value(&json)?,
+            itk: path_value(&itk)?,
         })
     }
 }

@@ -1,7 +1,7 @@
 //! `io.write_volume`: a volume or mask with its voxel -> patient affine as
 //! NRRD or NIfTI-1, by the file's extension.
 
-use crate::io::path_values::path_of;
+use fusegraph_engine::path_value;
 use crate::io::volumes::{VolumeFormat, volume_format};
 use crate::io::{Voxels, write_nifti, write_nrrd};
 use fusegraph_engine::Value;
@@ -39,7 +39,7 @@ pub struct WriteVolumeInputs {
 #[derive(Outputs)]
 pub struct WriteVolumeOutputs {
     /// The written file
-    pub file: Arc<PathValue>,
+    pub file: PathValue,
 }
 
 impl RunOp for WriteVolume {
@@ -76,7 +76,7 @@ impl RunOp for WriteVolume {
             .len();
         ctx.metric("bytes", bytes as f64);
         Ok(WriteVolumeOutputs {
-            file: path_of(&path)?,
+            file: path_value(&path)?,
         })
     }
 }

@@ -1,6 +1,6 @@
 //! `phantom.generate`: a synthetic phantom and everything imaged of it.
 
-use super::path_output;
+use fusegraph_engine::path_value;
 use crate::phantom::{PhantomConfig, PhantomSize, ShapeParams, generate};
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::PathValue;
@@ -42,13 +42,13 @@ pub struct GenerateInputs;
 #[derive(Outputs)]
 pub struct GenerateOutputs {
     /// Folder of DICOM slices (shuffled file order)
-    pub mri_dir: Arc<PathValue>,
+    pub mri_dir: PathValue,
     /// Folder of chessboard pairs left_NN.png / right_NN.png
-    pub calib_dir: Arc<PathValue>,
+    pub calib_dir: PathValue,
     /// Folder of phantom pairs left_NN.png / right_NN.png
-    pub views_dir: Arc<PathValue>,
+    pub views_dir: PathValue,
     /// ground_truth.json (schema fusegraph-phantom/1)
-    pub truth: Arc<PathValue>,
+    pub truth: PathValue,
 }
 
 impl Generate {
@@ -82,10 +82,10 @@ impl RunOp for Generate {
         ctx.metric("calibration_ms", g.stage_ms[1]);
         ctx.metric("views_ms", g.stage_ms[2]);
         Ok(GenerateOutputs {
-            mri_dir: path_output(&g.mri_dir)?,
-            calib_dir: path_output(&g.calib_dir)?,
-            views_dir: path_output(&g.views_dir)?,
-            truth: path_output(&g.truth_file)?,
+            mri_dir: path_value(&g.mri_dir)?,
+            calib_dir: path_value(&g.calib_dir)?,
+            views_dir: path_value(&g.views_dir)?,
+            truth: path_value(&g.truth_file)?,
         })
     }
 }

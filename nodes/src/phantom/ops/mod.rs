@@ -14,8 +14,6 @@ pub use true_disparity::{TrueDisparity, TrueDisparityInputs, TrueDisparityOutput
 
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{PathValue, ValueError};
-use fusegraph_engine::{Value, path_value};
-use std::path::Path;
 
 /// The input of the ops that read a phantom's truth alone.
 #[derive(Inputs)]
@@ -27,16 +25,4 @@ pub struct TruthInput {
 /// A value whose shape does not fit its type, as the op's error.
 pub(crate) fn shape_error(e: ValueError) -> OpError {
     OpError::invalid(e.0)
-}
-
-/// A file or folder the op wrote, as a `Path` output.
-pub(crate) fn path_output(path: &Path) -> Result<Arc<PathValue>, OpError> {
-    match path_value(path)? {
-        Value::Path(p) => Ok(p),
-        other => Err(OpError::invalid(format!(
-            "{} is a {}, not a path",
-            path.display(),
-            other.value_type()
-        ))),
-    }
 }

@@ -1,7 +1,7 @@
 //! `plot.lines`: a line plot of table columns, written as PNG.
 
 use crate::plot::{LinePlot, draw_lines};
-use fusegraph_engine::{Value, path_value};
+use fusegraph_engine::path_value;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{PathValue, Table};
 
@@ -47,7 +47,7 @@ pub struct LinesInputs {
 #[derive(Outputs)]
 pub struct LinesOutputs {
     /// The PNG
-    pub file: Arc<PathValue>,
+    pub file: PathValue,
 }
 
 impl RunOp for Lines {
@@ -81,9 +81,8 @@ impl RunOp for Lines {
         let path = ctx.output_path(&self.file)?;
         draw_lines(&t, &plot, &path)
             .map_err(|e| OpError::invalid(format!("{}: {e}", path.display())))?;
-        let Value::Path(file) = path_value(&path)? else {
-            unreachable!("path_value makes a Path value");
-        };
-        Ok(LinesOutputs { file })
+        Ok(LinesOutputs {
+            file: path_value(&path)?,
+        })
     }
 }

@@ -440,7 +440,36 @@ impl std::fmt::Display for Refusal {
 }
 
 /// Finds the whole `cols x rows` board (inner corners) in a grey image (0..1,
-/// row-major) and returns its corners to sub-pixel accuracy, or why not.
+/// row-major) and returns its corners to sub-pixel accuracy (px, integer
+/// values at pixel centres), or why not.
+///
+/// # Examples
+///
+/// A board of 5 x 4 squares (4 x 3 inner corners, squares 12 px, the
+/// top-left square dark) on white, drawn with hard edges so that its corners
+/// lie between pixels:
+///
+/// ```
+/// use fusegraph_nodes::calib::find_chessboard;
+///
+/// let (w, h) = (88, 76);
+/// let grey: Vec<f32> = (0..w * h)
+///     .map(|i| {
+///         // The square (column, row) of pixel i; the board starts at (12.5, 12.5) px.
+///         let (x, y) = ((i % w) as f64 - 12.5, (i / w) as f64 - 12.5);
+///         let (c, r) = ((x / 12.0).floor(), (y / 12.0).floor());
+///         let on_board = (0.0..5.0).contains(&c) && (0.0..4.0).contains(&r);
+///         if on_board && (c + r) % 2.0 == 0.0 { 0.1 } else { 0.9 }
+///     })
+///     .collect();
+/// let corners = find_chessboard(&grey, w, h, 4, 3).unwrap();
+/// // Row by row, from the corner next to the dark outer square.
+/// assert_eq!(corners.len(), 12);
+/// for (k, p) in corners.iter().enumerate() {
+///     let (x, y) = (24.5 + 12.0 * (k % 4) as f64, 24.5 + 12.0 * (k / 4) as f64);
+///     assert!((p.x - x).abs() < 0.05 && (p.y - y).abs() < 0.05, "corner {k}: {p}");
+/// }
+/// ```
 pub fn find_chessboard(
     grey: &[f32],
     w: usize,

@@ -21,7 +21,7 @@ pub struct CalibrateCameraInputs {
     pub corners: Arc<Table>,
 }
 
-#[derive(Outputs)]
+#[derive(Debug, Outputs)]
 pub struct CalibrateCameraOutputs {
     /// Intrinsics (px) and distortion
     pub camera: Camera,

@@ -45,7 +45,7 @@ pub struct FindChessboardInputs {
     pub image: Option<Arc<Image>>,
 }
 
-#[derive(Outputs)]
+#[derive(Debug, Outputs)]
 pub struct FindChessboardOutputs {
     /// view, corner, x_px, y_px, board_x_mm, board_y_mm, width_px, height_px
     pub corners: Table,
@@ -88,8 +88,8 @@ impl RunOp for FindChessboard {
                 ));
             }
         };
-        let pattern = glob::Pattern::new(&self.glob)
-            .map_err(|e| OpError::invalid(format!("glob: {e}")))?;
+        let pattern =
+            glob::Pattern::new(&self.glob).map_err(|e| OpError::invalid(format!("glob: {e}")))?;
         let photos = numbered_photos(&dir, &pattern).map_err(OpError::invalid)?;
         for note in &photos.skipped {
             ctx.note(note.clone());
@@ -145,5 +145,73 @@ impl RunOp for FindChessboard {
             corners: corners_table(&found, cols, square)?,
             views: views_table(&records)?,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fusegraph_engine::value::Pixels;
+
+    /// A 5 x 4 square board (4 x 3 inner corners, squares 12 px) on white,
+    /// 88 x 76 px grey.
+    fn board() -> Image {
+        let (w, h) = (88, 76);
+        let pixels: Vec<u8> = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f64 - 12.5, (i / w) as f64 - 12.5);
+                let (c, r) = ((x / 12.0).floor(), (y / 12.0).floor());
+                let on_board = (0.0..5.0).contains(&c) && (0.0..4.0).contains(&r);
+                if on_board && (c + r) % 2.0 == 0.0 {
+                    25
+                } else {
+                    230
+                }
+            })
+            .collect();
+        Image::new(w, h, 1, Pixels::U8(pixels.into())).unwrap()
+    }
+
+    fn op(pattern: [usize; 2]) -> FindChessboard {
+        FindChessboard {
+            dir: None,
+            glob: "*.png".into(),
+            pattern,
+            square_mm: 10.0,
+            max_megapixels: 100.0,
+        }
+    }
+
+    #[test]
+    fn one_image_gives_view_0_and_its_corners_in_mm() {
+        let mut ctx = RunCtx::new("find", std::path::Path::new("."));
+        let inputs = FindChessboardInputs {
+            dir: None,
+            image: Some(Arc::new(board())),
+        };
+        let out = op([4, 3]).run(inputs, &mut ctx).unwrap();
+        assert_eq!(out.corners.row_count(), 12);
+        // Corner 5: the second of the second row, one square from corner 0.
+        let row = out.corners.row(5);
+        assert_eq!((row[0], row[1], row[4], row[5]), (0.0, 5.0, 10.0, 10.0));
+        assert!((row[2] - 36.5).abs() < 0.05 && (row[3] - 36.5).abs() < 0.05);
+        assert_eq!(out.views.row(0), [0.0, 1.0, 88.0, 76.0, 0.0]);
+        assert_eq!(ctx.metrics()["detected"], 1.0);
+    }
+
+    #[test]
+    fn no_source_or_no_board_is_an_error() {
+        let mut ctx = RunCtx::new("find", std::path::Path::new("."));
+        let none = FindChessboardInputs {
+            dir: None,
+            image: None,
+        };
+        let e = op([4, 3]).run(none, &mut ctx).unwrap_err();
+        assert!(e.to_string().contains("give the `dir` parameter"), "{e}");
+        let wrong = FindChessboardInputs {
+            dir: None,
+            image: Some(Arc::new(board())),
+        };
+        assert!(op([5, 4]).run(wrong, &mut ctx).is_err());
     }
 }

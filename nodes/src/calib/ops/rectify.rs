@@ -21,7 +21,7 @@ pub struct RectifyInputs {
     pub rig: Arc<StereoRig>,
 }
 
-#[derive(Outputs)]
+#[derive(Debug, Outputs)]
 pub struct RectifyOutputs {
     /// Rotations and projections (px; P2 translation f Tx)
     pub rectification: Rectification,

@@ -34,7 +34,7 @@ pub struct RemapInputs {
     pub rectification: Arc<Rectification>,
 }
 
-#[derive(Outputs)]
+#[derive(Debug, Outputs)]
 pub struct RemapOutputs {
     /// Rectified image
     pub image: Image,

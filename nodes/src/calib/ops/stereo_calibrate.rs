@@ -28,7 +28,7 @@ pub struct StereoCalibrateInputs {
     pub right_views: Option<Arc<Table>>,
 }
 
-#[derive(Outputs)]
+#[derive(Debug, Outputs)]
 pub struct StereoCalibrateOutputs {
     /// Cameras and R, T (left -> right, mm)
     pub rig: StereoRig,

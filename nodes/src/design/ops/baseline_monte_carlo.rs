@@ -56,7 +56,7 @@ pub struct BaselineMonteCarloInputs {
     pub lens_mm: Option<f64>,
 }
 
-#[derive(Outputs)]
+#[derive(Debug, Outputs)]
 pub struct BaselineMonteCarloOutputs {
     /// baseline_mm, verging_deg, var_x/y/z_mm2, fitted and paper z variances
     pub table: Table,

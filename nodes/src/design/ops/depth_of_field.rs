@@ -41,7 +41,7 @@ pub struct DepthOfFieldInputs {
     pub lens_mm: Option<f64>,
 }
 
-#[derive(Outputs)]
+#[derive(Debug, Outputs)]
 pub struct DepthOfFieldOutputs {
     /// distance_mm, blur_um, blur_px
     pub table: Table,
@@ -89,5 +89,50 @@ impl RunOp for DepthOfField {
         Ok(DepthOfFieldOutputs {
             table: table(&["distance_mm", "blur_um", "blur_px"], rows)?,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn op() -> DepthOfField {
+        DepthOfField {
+            focal_mm: 8.0,
+            f_number: 8.0,
+            near_mm: 400.0,
+            far_mm: 700.0,
+            focus_mm: 0.0,
+            circle_mm: 0.006,
+            pixel_mm: 0.006,
+            steps: 4,
+        }
+    }
+
+    #[test]
+    fn the_lens_input_overrides_focal_mm_and_the_range_is_tabulated() {
+        let mut ctx = RunCtx::new("dof", std::path::Path::new("."));
+        let inputs = DepthOfFieldInputs {
+            lens_mm: Some(12.0),
+        };
+        let out = op().run(inputs, &mut ctx).unwrap();
+        assert_eq!(
+            out.table.column("distance_mm").unwrap(),
+            [400.0, 500.0, 600.0, 700.0]
+        );
+        // Focused at the harmonic mean of the range, the blur is equal at both ends.
+        let blur = out.table.column("blur_um").unwrap();
+        assert!((blur[0] - blur[3]).abs() < 1e-9 && blur[0] > blur[1]);
+        assert!((ctx.metrics()["focus_mm"] - 2.0 * 400.0 * 700.0 / 1100.0).abs() < 1e-9);
+        let e = DepthOfField {
+            far_mm: 300.0,
+            ..op()
+        }
+        .run(DepthOfFieldInputs { lens_mm: None }, &mut ctx)
+        .unwrap_err();
+        assert!(
+            e.to_string().contains("need focal 8 < near 400 < far 300"),
+            "{e}"
+        );
     }
 }

@@ -28,7 +28,7 @@ pub struct FocalLength {
 #[derive(Inputs)]
 pub struct FocalLengthInputs;
 
-#[derive(Outputs)]
+#[derive(Debug, Outputs)]
 pub struct FocalLengthOutputs {
     /// The chosen lens, mm
     pub lens_mm: f64,

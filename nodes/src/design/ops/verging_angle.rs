@@ -18,7 +18,7 @@ pub struct VergingAngle {
 #[derive(Inputs)]
 pub struct VergingAngleInputs;
 
-#[derive(Outputs)]
+#[derive(Debug, Outputs)]
 pub struct VergingAngleOutputs {
     /// Verging angle, deg
     pub theta_deg: f64,
@@ -32,5 +32,22 @@ impl RunOp for VergingAngle {
         let theta = verging_angle_deg(self.baseline_mm, self.min_distance_mm);
         ctx.metric("theta_deg", theta);
         Ok(VergingAngleOutputs { theta_deg: theta })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_papers_rig_verges_by_7_8_degrees() {
+        let op = VergingAngle {
+            baseline_mm: 55.0,
+            min_distance_mm: 400.0,
+        };
+        let mut ctx = RunCtx::new("verge", std::path::Path::new("."));
+        let out = op.run(VergingAngleInputs, &mut ctx).unwrap();
+        assert!((out.theta_deg - 7.82908).abs() < 1e-5, "{}", out.theta_deg);
+        assert_eq!(ctx.metrics()["theta_deg"], out.theta_deg);
     }
 }

@@ -23,7 +23,7 @@ pub struct LoadSeriesInputs {
     pub dir: Option<Arc<PathValue>>,
 }
 
-#[derive(Outputs)]
+#[derive(Debug, Outputs)]
 pub struct LoadSeriesOutputs {
     /// Rescaled voxels; voxel (column, row, slice) -> patient LPS mm
     pub volume: Volume,
@@ -62,5 +62,33 @@ impl RunOp for LoadSeries {
         ctx.metric("spacing_z_mm", spacing[2]);
         let volume = Volume::new(series.grid, series.voxels).map_err(|e| OpError::invalid(e.0))?;
         Ok(LoadSeriesOutputs { volume })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_path_or_a_dir_but_not_both() {
+        let mut ctx = RunCtx::new("load", std::path::Path::new("."));
+        let dir = || {
+            Some(Arc::new(PathValue {
+                path: "/nonexistent".into(),
+                content_hash: String::new(),
+            }))
+        };
+        let given = |path: Option<&str>| LoadSeries {
+            path: path.map(PathBuf::from),
+            series_uid: String::new(),
+        };
+        let e = given(None)
+            .run(LoadSeriesInputs { dir: None }, &mut ctx)
+            .unwrap_err();
+        assert!(e.to_string().contains("give the `path` parameter"), "{e}");
+        let e = given(Some("/nonexistent"))
+            .run(LoadSeriesInputs { dir: dir() }, &mut ctx)
+            .unwrap_err();
+        assert!(e.to_string().contains("not both"), "{e}");
     }
 }

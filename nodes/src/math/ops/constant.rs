@@ -14,7 +14,7 @@ pub struct Constant {
 #[derive(Inputs)]
 pub struct ConstantInputs;
 
-#[derive(Outputs)]
+#[derive(Debug, Outputs)]
 pub struct ConstantOutputs {
     /// The number
     pub value: f64,

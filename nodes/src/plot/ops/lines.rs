@@ -44,7 +44,7 @@ pub struct LinesInputs {
     pub table: Arc<Table>,
 }
 
-#[derive(Outputs)]
+#[derive(Debug, Outputs)]
 pub struct LinesOutputs {
     /// The PNG
     pub file: PathValue,
@@ -84,5 +84,43 @@ impl RunOp for Lines {
         Ok(LinesOutputs {
             file: path_value(&path)?,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn plots_every_other_column_against_the_first_by_default() {
+        let table = Table::new(
+            vec!["b".into(), "v".into(), "w".into()],
+            vec![5.0, 11.9, 1.0, 10.0, 2.8, 2.0, 25.0, 0.38, 3.0],
+        )
+        .unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let mut ctx = RunCtx::new("plot", dir.path());
+        let op = Lines {
+            x: String::new(),
+            y: Vec::new(),
+            title: "t".into(),
+            x_label: String::new(),
+            y_label: String::new(),
+            log_x: false,
+            log_y: false,
+            size_px: [200, 150],
+            file: "sub/p.png".into(),
+        };
+        let out = op
+            .run(
+                LinesInputs {
+                    table: Arc::new(table),
+                },
+                &mut ctx,
+            )
+            .unwrap();
+        assert_eq!(out.file.path, dir.path().join("sub/p.png"));
+        let img = image::open(&out.file.path).unwrap().to_rgb8();
+        assert_eq!(img.dimensions(), (200, 150));
     }
 }

@@ -348,9 +348,8 @@ pub fn run_bench(what: BenchCommand, registry: &Registry) -> anyhow::Result<()> 
 }
 
 fn icp_bench(n: usize, iterations: usize, out: Option<&std::path::Path>) -> anyhow::Result<()> {
-    use fusegraph_nodes::register::{
-        IcpMethod, IcpParams, Kernel, Nearest, bumpy_ellipsoid, estimate_normals, icp,
-    };
+    use fusegraph_nodes::cloud::{Nearest, bumpy_ellipsoid, estimate_normals};
+    use fusegraph_nodes::register::{IcpMethod, IcpParams, Kernel, icp};
     use nalgebra::{Isometry3, Point3, Vector3};
     let target = bumpy_ellipsoid(n, 0.5);
     let offset = Isometry3::new(Vector3::new(4.0, -2.0, 1.0), Vector3::new(0.0, 0.03, 0.04));

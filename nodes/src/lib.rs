@@ -4,6 +4,7 @@
 
 pub mod calib;
 pub mod camera;
+pub mod cloud;
 pub mod design;
 pub mod dicom;
 pub mod eval;
@@ -32,6 +33,7 @@ use fusegraph_engine::registry::RegisterError;
 /// Registers every built-in node type.
 pub fn register_all(registry: &mut Registry) -> Result<(), RegisterError> {
     calib::register(registry)?;
+    cloud::register(registry)?;
     design::register(registry)?;
     dicom::register(registry)?;
     eval::register(registry)?;

@@ -2,12 +2,11 @@
 //! spurious, Procrustes, point-to-plane ICP; from many initial rotations.
 
 use fusegraph_nodes::camera::isometry_from_matrix;
+use fusegraph_nodes::cloud::{Nearest, estimate_normals};
 use fusegraph_nodes::phantom::{
     GroundTruth, PhantomConfig, PhantomSize, SurfaceSimParams, generate, simulate_camera_surface,
 };
-use fusegraph_nodes::register::{
-    IcpMethod, IcpParams, Kernel, Nearest, estimate_normals, icp, match_markers, umeyama,
-};
+use fusegraph_nodes::register::{IcpMethod, IcpParams, Kernel, icp, match_markers, umeyama};
 use nalgebra::{Isometry3, Point3, Vector3};
 use std::path::Path;
 

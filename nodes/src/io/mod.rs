@@ -3,6 +3,7 @@
 //! functions here (images, disparity maps, volumes, meshes, markers, tables,
 //! rigs, transforms, JSON); the ops, one file each, are in [`ops`].
 
+mod disk_size;
 mod disparity;
 mod images;
 mod itk_transform;
@@ -11,7 +12,6 @@ mod markers;
 mod meshes;
 mod opencv_yaml;
 pub mod ops;
-mod disk_size;
 mod source_file;
 mod tables;
 mod volumes;

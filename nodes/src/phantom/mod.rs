@@ -26,7 +26,7 @@ pub use scenes::MARKER_GREEN;
 pub use shape::{Lesion, Marker, Material, PhantomShape, ShapeParams, Triples};
 pub use true_disparity::{SceneLabel, TrueDisparity, ViewScene, true_disparity};
 pub use truth::*;
-pub(crate) use truth_input::{load_truth, optional_truth_input, truth_input};
+pub(crate) use truth_input::load_truth;
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;

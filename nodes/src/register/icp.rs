@@ -8,18 +8,20 @@
 //! along the surface, where point-to-plane converges; prefer point-to-plane for
 //! surfaces.
 
-use super::cloud::{Nearest, voxel_downsample};
 use super::procrustes::umeyama;
+use crate::cloud::{Nearest, voxel_downsample};
+use fusegraph_plugin_api::derive::Choice;
 use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
 use rayon::prelude::*;
 
-/// Error metric.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// Error metric (also the `method` parameter of `register.icp`: its
+/// choices, in this order, are `point_to_plane` and `point_to_point`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Choice)]
 pub enum IcpMethod {
-    /// Distance between points.
-    PointToPoint,
     /// Distance along the target's normal.
     PointToPlane,
+    /// Distance between points.
+    PointToPoint,
 }
 
 /// Down-weighting of large residuals.
@@ -107,8 +109,37 @@ pub struct IcpResult {
 const REDUCTION_CHUNK: usize = 4096;
 
 /// Registers `source` onto `target` (whose k-d tree is `tree`; normals needed
-/// for point-to-plane), starting from `init`. The same inputs give the same
-/// bits on any number of threads.
+/// for point-to-plane), starting from `init` (source frame -> target frame,
+/// mm). The same inputs give the same bits on any number of threads.
+///
+/// # Examples
+///
+/// ```
+/// use fusegraph_nodes::cloud::{Nearest, bumpy_ellipsoid, estimate_normals};
+/// use fusegraph_nodes::register::{IcpMethod, IcpParams, Kernel, icp};
+/// use nalgebra::{Isometry3, Vector3};
+///
+/// // A surface, and the same surface moved about 2 mm and 3 degrees away.
+/// let target = bumpy_ellipsoid(2000, 0.5);
+/// let offset = Isometry3::new(Vector3::new(2.0, 0.0, -1.0), Vector3::new(0.0, 0.0, 0.05));
+/// let source: Vec<_> = target.iter().map(|p| offset.inverse() * p).collect();
+/// let params = IcpParams {
+///     method: IcpMethod::PointToPlane,
+///     max_distance_mm: 10.0,
+///     trim_ratio: 1.0,
+///     kernel: Kernel::None,
+///     max_iterations: 50,
+///     tolerance: 1e-9,
+///     voxel_sizes_mm: vec![],
+/// };
+/// let normals = estimate_normals(&target, 10, None);
+/// let tree = Nearest::new(&target).unwrap();
+/// let r = icp(&source, &target, Some(&normals), &tree, &Isometry3::identity(), &params).unwrap();
+/// // ICP finds the offset that maps the source back onto the target.
+/// assert!((r.transform.translation.vector - offset.translation.vector).norm() < 1e-3);
+/// assert!(r.transform.rotation.angle_to(&offset.rotation) < 1e-5);
+/// assert!(r.rmse_mm < 1e-3);
+/// ```
 pub fn icp(
     source: &[Point3<f64>],
     target: &[Point3<f64>],
@@ -229,11 +260,11 @@ pub fn icp(
 
 #[cfg(test)]
 mod tests {
-    use super::super::cloud::estimate_normals;
     use super::*;
+    use crate::cloud::{bumpy_ellipsoid, estimate_normals};
 
     fn surface() -> Vec<Point3<f64>> {
-        super::super::cloud::bumpy_ellipsoid(6000, 0.5)
+        bumpy_ellipsoid(6000, 0.5)
     }
 
     fn check(method: IcpMethod, partial: bool, offset_deg: f64, offset_mm: f64) {
@@ -292,11 +323,11 @@ mod tests {
     #[test]
     fn the_same_clouds_give_the_same_bits_on_any_thread_count() {
         // Enough pairs for several reduction chunks and rayon splits.
-        let target = super::super::cloud::bumpy_ellipsoid(30_000, 0.5);
+        let target = bumpy_ellipsoid(30_000, 0.5);
         let normals = estimate_normals(&target, 10, None);
         let tree = Nearest::new(&target).unwrap();
         let offset = Isometry3::new(Vector3::new(2.0, -1.0, 0.5), Vector3::new(0.0, 0.02, 0.03));
-        let source: Vec<Point3<f64>> = super::super::cloud::bumpy_ellipsoid(20_000, 0.25)
+        let source: Vec<Point3<f64>> = bumpy_ellipsoid(20_000, 0.25)
             .iter()
             .map(|p| offset * p)
             .collect();

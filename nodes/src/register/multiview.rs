@@ -4,8 +4,8 @@
 //! registered in turn onto all the others together, for a few rounds, so the
 //! loop's error is spread over every view instead of piling up at the end.
 
-use super::cloud::Nearest;
 use super::icp::{IcpParams, icp};
+use crate::cloud::Nearest;
 use nalgebra::{Isometry3, Point3, Vector3};
 
 /// One view: its points and normals in its own (camera) frame.

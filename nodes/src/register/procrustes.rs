@@ -51,7 +51,32 @@ impl Similarity {
 }
 
 /// The similarity minimising sum w_i |dst_i - T(src_i)|^2 (weights default to
-/// 1); `None` with fewer than 3 pairs or collinear points.
+/// 1), mapping `src`'s frame into `dst`'s (mm); `None` with fewer than 3 pairs
+/// or collinear points. `with_scale` false keeps the scale exactly 1.
+///
+/// # Examples
+///
+/// ```
+/// use fusegraph_nodes::register::umeyama;
+/// use nalgebra::{Point3, Vector3};
+///
+/// // Four markers, and the same markers shifted by (10, -5, 2) mm.
+/// let src = [
+///     Point3::new(0.0, 0.0, 0.0),
+///     Point3::new(30.0, 0.0, 0.0),
+///     Point3::new(0.0, 20.0, 0.0),
+///     Point3::new(0.0, 0.0, 10.0),
+/// ];
+/// let shift = Vector3::new(10.0, -5.0, 2.0);
+/// let dst: Vec<_> = src.iter().map(|p| p + shift).collect();
+/// let fit = umeyama(&src, &dst, None, false).unwrap();
+/// assert!((fit.translation - shift).norm() < 1e-9);
+/// assert!(fit.rotation.angle() < 1e-9);
+/// assert_eq!(fit.scale, 1.0);
+/// assert!(fit.rmse(&src, &dst) < 1e-9);
+/// // Two markers leave the rotation about their line open.
+/// assert!(umeyama(&src[..2], &dst[..2], None, false).is_none());
+/// ```
 pub fn umeyama(
     src: &[Point3<f64>],
     dst: &[Point3<f64>],

@@ -31,7 +31,6 @@ pub use features::{
     FeatureMatch, MatchParams, RangeParams, disparity_range, features_from_table,
     features_to_table, match_features, percentile,
 };
-pub(crate) use markers::hue_range;
 pub use markers::{
     Blob, BlobParams, MomentEllipse, PairParams, StereoMarker, StereoMarkers, colour_mask,
     components, dilate, ellipse_fit, erode, find_blobs, hsv, hue_score, open_close, pair_blobs,

@@ -3,7 +3,7 @@
 
 use crate::calib::tables::{corners_table, views_table};
 use crate::calib::{PhotoRecord, find_chessboard, numbered_photos};
-use crate::io::{DEFAULT_MAX_PIXELS, grey_of, load_grey_within};
+use crate::io::{ImageSizeLimit, grey_of, load_grey_within};
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Image, PathValue, Table};
 use nalgebra::Point2;
@@ -26,15 +26,9 @@ pub struct FindChessboard {
     /// Square size
     #[param(default = 25.0, unit = "mm", min = 1e-3)]
     pub square_mm: f64,
-    /// Largest image to decode: a file whose header declares more is refused
-    /// before decoding
-    #[param(
-        default = DEFAULT_MAX_PIXELS as f64 / 1e6,
-        unit = "Mpixel",
-        min = 0.01,
-        max = 10_000.0
-    )]
-    pub max_megapixels: f64,
+    /// The largest image decoded.
+    #[param(flatten)]
+    pub limit: ImageSizeLimit,
 }
 
 #[derive(Inputs)]
@@ -94,7 +88,7 @@ impl RunOp for FindChessboard {
         for note in &photos.skipped {
             ctx.note(note.clone());
         }
-        let max_pixels = (self.max_megapixels * 1e6) as u64;
+        let max_pixels = self.limit.max_pixels();
         let files: Vec<(u32, &PathBuf)> = photos.files.iter().map(|(v, f)| (*v, f)).collect();
         let results: Vec<Detection> = files
             .par_iter()
@@ -178,7 +172,9 @@ mod tests {
             glob: "*.png".into(),
             pattern,
             square_mm: 10.0,
-            max_megapixels: 100.0,
+            limit: ImageSizeLimit {
+                max_megapixels: 100.0,
+            },
         }
     }
 

@@ -1,7 +1,7 @@
 //! `io.write_cloud`: one or two point clouds as one coloured binary PLY.
 
-use fusegraph_engine::path_value;
 use crate::io::write_ply;
+use fusegraph_engine::path_value;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{PathValue, PointCloud};
 

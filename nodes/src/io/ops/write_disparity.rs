@@ -1,8 +1,8 @@
 //! `io.write_disparity`: a disparity map as a colour-mapped PNG with a legend
 //! in px, and as PFM.
 
-use fusegraph_engine::path_value;
 use crate::io::{disparity_png, encode_pfm, finite_percentiles};
+use fusegraph_engine::path_value;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Disparity, PathValue};
 

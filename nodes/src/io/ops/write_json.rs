@@ -1,9 +1,9 @@
 //! `io.write_json`: a small value (a number, table, transform, markers,
 //! camera, rig) as JSON under the output folder.
 
-use fusegraph_engine::path_value;
 use crate::io::value_to_json;
 use fusegraph_engine::Value;
+use fusegraph_engine::path_value;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::PathValue;
 

@@ -1,8 +1,8 @@
 //! `io.write_markers`: marker centres as a 3D Slicer markups file (`.mrk.json`,
 //! LPS) and as CSV.
 
-use fusegraph_engine::path_value;
 use crate::io::{markers_csv, slicer_markups};
+use fusegraph_engine::path_value;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Markers, PathValue};
 

@@ -1,7 +1,7 @@
 //! `io.write_mesh`: a mesh as binary PLY or STL, by the file's extension.
 
-use fusegraph_engine::path_value;
 use crate::io::{write_ply, write_stl};
+use fusegraph_engine::path_value;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Mesh, PathValue};
 

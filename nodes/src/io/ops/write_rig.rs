@@ -1,7 +1,7 @@
 //! `io.write_rig`: a stereo rig as JSON and as an OpenCV FileStorage YAML file.
 
-use fusegraph_engine::path_value;
 use crate::io::rig_yaml;
+use fusegraph_engine::path_value;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{PathValue, StereoRig};
 

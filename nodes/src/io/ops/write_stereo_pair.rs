@@ -1,8 +1,8 @@
 //! `io.write_stereo_pair`: a rectified pair side by side as PNG, with
 //! horizontal lines to check rectification by eye.
 
-use fusegraph_engine::path_value;
 use crate::io::side_by_side;
+use fusegraph_engine::path_value;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Image, PathValue};
 

@@ -1,7 +1,7 @@
 //! `io.write_table`: a table as CSV and as a Markdown table.
 
-use fusegraph_engine::path_value;
 use crate::io::{table_csv, table_markdown};
+use fusegraph_engine::path_value;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{PathValue, Table};
 

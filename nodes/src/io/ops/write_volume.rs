@@ -1,10 +1,10 @@
 //! `io.write_volume`: a volume or mask with its voxel -> patient affine as
 //! NRRD or NIfTI-1, by the file's extension.
 
-use fusegraph_engine::path_value;
 use crate::io::volumes::{VolumeFormat, volume_format};
 use crate::io::{Voxels, write_nifti, write_nrrd};
 use fusegraph_engine::Value;
+use fusegraph_engine::path_value;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::PathValue;
 

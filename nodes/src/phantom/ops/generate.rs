@@ -1,7 +1,7 @@
 //! `phantom.generate`: a synthetic phantom and everything imaged of it.
 
-use fusegraph_engine::path_value;
 use crate::phantom::{PhantomConfig, PhantomSize, ShapeParams, generate};
+use fusegraph_engine::path_value;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::PathValue;
 

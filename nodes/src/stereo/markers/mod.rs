@@ -5,7 +5,6 @@
 mod blobs;
 mod figure;
 mod hsv_markers;
-mod hue_param;
 
 pub use blobs::{MomentEllipse, components, dilate, ellipse_fit, erode, open_close, soft_centroid};
 pub(crate) use figure::detections_png;
@@ -13,4 +12,3 @@ pub use hsv_markers::{
     Blob, BlobParams, PairParams, StereoMarker, StereoMarkers, colour_mask, find_blobs, hsv,
     hue_score, pair_blobs, stereo_markers, stereo_markers_unrectified,
 };
-pub(crate) use hue_param::hue_range;

@@ -97,6 +97,33 @@ pub fn dominant_plane(
     Some((plane, held))
 }
 
+/// Which points of `points` (in a camera frame: the camera at the origin, mm)
+/// stay when the table under an object is removed: when the dominant plane
+/// ([`dominant_plane`] with `threshold_mm`, `iterations` and `seed`) holds at
+/// least `min_fraction` of the points, those more than `threshold_mm` off it
+/// on the camera's side; else every point. Also the fraction of the points
+/// the removed plane held (0 when none was removed).
+pub fn off_table(
+    points: &[Point3<f64>],
+    threshold_mm: f64,
+    min_fraction: f64,
+    iterations: usize,
+    seed: u64,
+) -> (Vec<bool>, f64) {
+    match dominant_plane(points, threshold_mm, iterations, seed) {
+        Some((plane, held)) if held as f64 >= min_fraction * points.len() as f64 => {
+            // The camera's side of the plane is where the origin is.
+            let side = -plane.distance(&Point3::origin()).signum();
+            let keep = points
+                .iter()
+                .map(|p| side * plane.distance(p) < -threshold_mm)
+                .collect();
+            (keep, held as f64 / points.len() as f64)
+        }
+        _ => (vec![true; points.len()], 0.0),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -132,5 +159,25 @@ mod tests {
         assert!((20_000..20_500).contains(&held), "{held}");
         assert!((plane.distance(&Point3::new(0.0, 0.0, 600.0))).abs() < 0.1);
         assert!(dominant_plane(&pts[..2], 1.0, 10, 1).is_none());
+    }
+
+    #[test]
+    fn the_table_and_what_lies_beyond_it_go() {
+        // A table at z = 500 mm seen from the origin, a point above it (on the
+        // camera's side) and one below it.
+        let mut pts: Vec<Point3<f64>> = (0..400)
+            .map(|i| Point3::new((i % 20) as f64 * 5.0, (i / 20) as f64 * 5.0, 500.0))
+            .collect();
+        pts.extend([
+            Point3::new(10.0, 10.0, 480.0),
+            Point3::new(10.0, 10.0, 520.0),
+        ]);
+        let (keep, fraction) = off_table(&pts, 1.0, 0.5, 50, 1);
+        assert_eq!(keep.iter().filter(|k| **k).count(), 1);
+        assert!(keep[400] && !keep[401]);
+        assert!((fraction - 400.0 / 402.0).abs() < 1e-12);
+        // Too small a share of the points: nothing goes.
+        let (keep, fraction) = off_table(&pts, 1.0, 0.999, 50, 1);
+        assert_eq!((keep, fraction), (vec![true; 402], 0.0));
     }
 }

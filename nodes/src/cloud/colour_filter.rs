@@ -3,7 +3,7 @@
 //! The colour test is [`crate::stereo::colour_mask`], the one the marker
 //! finder uses.
 
-use super::cloud::Nearest;
+use super::Nearest;
 use crate::stereo::{BlobParams, colour_mask};
 use nalgebra::Point3;
 

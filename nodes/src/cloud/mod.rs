@@ -1,0 +1,33 @@
+//! Point clouds (helpers of the paper's module D): nearest-neighbour search,
+//! sampling a mesh, voxel downsampling, normals by local PCA, removing the
+//! table under an object and the points near a colour; and the `cloud.*` ops.
+
+mod colour_filter;
+pub(crate) mod convert;
+mod nearest;
+mod normals;
+pub mod ops;
+mod plane;
+mod sample;
+mod voxel;
+
+pub use colour_filter::away_from_colour;
+pub use nearest::Nearest;
+pub use normals::estimate_normals;
+pub use plane::{Plane, dominant_plane, off_table};
+pub use sample::{bumpy_ellipsoid, sample_mesh, sample_mesh_with_normals};
+pub use voxel::voxel_downsample;
+
+use fusegraph_engine::Registry;
+use fusegraph_engine::registry::RegisterError;
+
+/// Registers the `cloud.*` ops.
+pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
+    registry.add::<ops::FromMesh>()?;
+    registry.add::<ops::Downsample>()?;
+    registry.add::<ops::RemovePlane>()?;
+    registry.add::<ops::RemoveColour>()?;
+    registry.add::<ops::Normals>()?;
+    registry.add::<ops::TransformCloud>()?;
+    Ok(())
+}

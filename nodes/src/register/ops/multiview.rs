@@ -1,0 +1,376 @@
+//! `register.multiview`: several camera clouds into one.
+
+use crate::cloud::convert::{cloud_normals, cloud_points, make_cloud};
+use crate::cloud::estimate_normals;
+use crate::register::convert::{marker_points, markers_value, transform_isometry};
+use crate::register::{
+    IcpMethod, IcpParams, Kernel, View, merge_markers, poses_from_markers, register_views,
+};
+use fusegraph_engine::Inputs;
+use fusegraph_engine::typed::declaration::{
+    InputPort, InputSet, PortDecl, PortProblem, port, read_input,
+};
+use fusegraph_engine::typed::prelude::*;
+use fusegraph_engine::value::{Markers, PointCloud, Table, Transform};
+use nalgebra::{Isometry3, Point3};
+
+/// Views `register.multiview` accepts.
+pub const MAX_VIEWS: usize = 8;
+
+/// Several camera clouds (and their markers) with rough poses -> one cloud and one marker set: pairwise ICP around the ring, then global adjustment
+#[derive(Op)]
+#[op(name = "register.multiview", version = 3)]
+pub struct Multiview {
+    /// ICP: pairs farther apart are ignored
+    #[param(default = 8.0, unit = "mm", min = 1e-3)]
+    pub max_distance_mm: f64,
+    /// ICP: fraction of closest pairs kept
+    #[param(default = 0.8, min = 0.05, max = 1.0)]
+    pub trim_ratio: f64,
+    /// ICP: Huber threshold
+    #[param(default = 1.0, unit = "mm", min = 1e-6)]
+    pub kernel_mm: f64,
+    /// ICP: coarse-to-fine voxel sizes (0 = full)
+    #[param(default = [4.0, 0.0], unit = "mm", min = 0.0)]
+    pub voxel_sizes_mm: Vec<f64>,
+    /// Rounds of global adjustment
+    #[param(default = 2, min = 1, max = 20)]
+    pub rounds: usize,
+    /// ICP: relative change of RMSE and fitness that stops it (tighter only slows it: on 100k-point clouds the fitness moves by single pairs)
+    #[param(default = 1e-5, min = 0.0)]
+    pub tolerance: f64,
+    /// Frame of the outputs: world (the poses' frame), or the first view's camera frame (its refined pose taken as the origin)
+    #[param(default = OutputFrame::World)]
+    pub frame: OutputFrame,
+    /// Marker sightings from different views closer than this are one marker
+    #[param(default = 4.0, unit = "mm", min = 0.0)]
+    pub merge_mm: f64,
+    /// Neighbours for normals of clouds without them
+    #[param(default = 12, min = 3, max = 200)]
+    pub normals_k: usize,
+}
+
+/// The frame of `register.multiview`'s outputs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Choice)]
+pub enum OutputFrame {
+    /// The poses' frame, `world`.
+    World,
+    /// The first view's camera frame (its refined pose taken as the origin).
+    FirstView,
+}
+
+/// One view's ports: `cloud{i}`, `pose{i}` and `markers{i}`.
+pub struct ViewInputs {
+    /// The view's cloud, in its camera frame (always there for views 0 and 1).
+    pub cloud: Option<Arc<PointCloud>>,
+    /// Its rough camera -> world pose.
+    pub pose: Option<Arc<Transform>>,
+    /// Its markers, in its cloud's frame.
+    pub markers: Option<Arc<Markers>>,
+}
+
+/// The inputs: [`MAX_VIEWS`] views, each `cloud{i}`, `pose{i}`, `markers{i}`
+/// in that order, the first two clouds required. The ports are computed, so
+/// this set is written by hand rather than derived.
+pub struct MultiviewInputs {
+    /// View `i`'s ports at index `i`, for every `i` below [`MAX_VIEWS`].
+    pub views: Vec<ViewInputs>,
+}
+
+impl<'a> InputSet<'a, Inputs> for MultiviewInputs {
+    fn port_decls() -> Vec<PortDecl> {
+        let mut decls = Vec::with_capacity(3 * MAX_VIEWS);
+        for i in 0..MAX_VIEWS {
+            decls.push(port(
+                &format!("cloud{i}"),
+                <Arc<PointCloud> as InputPort<'a, Inputs>>::type_names(),
+                i >= 2,
+                &format!("View {i}'s cloud, in its camera frame"),
+            ));
+            decls.push(port(
+                &format!("pose{i}"),
+                <Arc<Transform> as InputPort<'a, Inputs>>::type_names(),
+                true,
+                &format!(
+                    "View {i}'s rough camera -> world pose (e.g. the robot's reading); without poses, they come from the markers"
+                ),
+            ));
+            decls.push(port(
+                &format!("markers{i}"),
+                <Arc<Markers> as InputPort<'a, Inputs>>::type_names(),
+                true,
+                &format!("View {i}'s markers, in its cloud's frame"),
+            ));
+        }
+        decls
+    }
+
+    fn from_inputs(source: &'a Inputs) -> Result<Self, PortProblem> {
+        let views = (0..MAX_VIEWS)
+            .map(|i| {
+                let cloud = format!("cloud{i}");
+                Ok(ViewInputs {
+                    cloud: if i < 2 {
+                        Some(read_input::<_, Arc<PointCloud>>(source, &cloud)?)
+                    } else {
+                        read_input(source, &cloud)?
+                    },
+                    pose: read_input(source, &format!("pose{i}"))?,
+                    markers: read_input(source, &format!("markers{i}"))?,
+                })
+            })
+            .collect::<Result<_, PortProblem>>()?;
+        Ok(MultiviewInputs { views })
+    }
+}
+
+#[derive(Outputs)]
+pub struct MultiviewOutputs {
+    /// All views in the output frame, coloured by view
+    pub cloud: PointCloud,
+    /// view, then the 3 x 4 camera -> output frame matrix row by row (mm)
+    pub poses: Table,
+    /// Every view's markers in the output frame, sightings of one marker merged (empty without marker inputs)
+    pub markers: Markers,
+}
+
+/// The colour of each view in the merged cloud.
+const PALETTE: [[u8; 3]; MAX_VIEWS] = [
+    [230, 90, 60],
+    [60, 160, 230],
+    [90, 200, 90],
+    [230, 200, 60],
+    [180, 90, 220],
+    [60, 210, 200],
+    [240, 140, 190],
+    [150, 150, 150],
+];
+
+impl RunOp for Multiview {
+    type Inputs = MultiviewInputs;
+    type Outputs = MultiviewOutputs;
+
+    fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
+        let k = self.normals_k;
+        let (mut views, mut rough, mut markers) = (Vec::new(), Vec::new(), Vec::new());
+        let mut frame = String::new();
+        for (i, view) in inputs.views.into_iter().enumerate() {
+            let seen = view.markers;
+            match (view.cloud, view.pose) {
+                (Some(c), pose) => {
+                    if let Some(m) = &seen
+                        && m.frame != c.frame
+                    {
+                        return Err(OpError::invalid(format!(
+                            "markers{i} are in `{}` but cloud{i} in `{}`",
+                            m.frame, c.frame
+                        )));
+                    }
+                    markers.push(seen.map(|m| marker_points(&m)));
+                    if frame.is_empty() {
+                        frame = c.frame.clone();
+                    }
+                    if let Some(t) = &pose
+                        && (t.from != c.frame || t.to != "world")
+                    {
+                        return Err(OpError::invalid(format!(
+                            "pose{i} maps `{}` -> `{}`; it must map the cloud's frame `{}` -> `world`",
+                            t.from, t.to, c.frame
+                        )));
+                    }
+                    let points = cloud_points(&c);
+                    let normals = match cloud_normals(&c) {
+                        Some(n) => n,
+                        None => estimate_normals(&points, k, Some(Point3::origin())),
+                    };
+                    views.push(View { points, normals });
+                    rough.push(pose.map(|t| transform_isometry(&t)));
+                }
+                (None, None) if seen.is_none() => {}
+                _ => {
+                    return Err(OpError::invalid(format!(
+                        "view {i}: pose{i} or markers{i} without cloud{i}"
+                    )));
+                }
+            }
+        }
+        // Rough poses: all given, or none (then from the markers).
+        let rough: Vec<Isometry3<f64>> = if rough.iter().all(Option::is_some) {
+            rough.into_iter().flatten().collect()
+        } else if rough.iter().all(Option::is_none) {
+            let sets: Option<Vec<Vec<Point3<f64>>>> = markers.iter().cloned().collect();
+            let sets = sets.ok_or_else(|| {
+                OpError::invalid("without poses, connect every view's markers (markers0 ...)")
+            })?;
+            poses_from_markers(&sets, self.merge_mm).map_err(OpError::invalid)?
+        } else {
+            return Err(OpError::invalid(
+                "connect a pose for every view or for none (then they come from the markers)",
+            ));
+        };
+        let p = IcpParams {
+            method: IcpMethod::PointToPlane,
+            max_distance_mm: self.max_distance_mm,
+            trim_ratio: self.trim_ratio,
+            kernel: Kernel::Huber(self.kernel_mm),
+            max_iterations: 40,
+            tolerance: self.tolerance,
+            voxel_sizes_mm: self.voxel_sizes_mm.clone(),
+        };
+        let mut m = register_views(&views, &rough, &p, self.rounds).map_err(OpError::invalid)?;
+        let out_frame = match self.frame {
+            OutputFrame::FirstView => {
+                let origin = m.poses[0].inverse();
+                for pose in &mut m.poses {
+                    *pose = origin * *pose;
+                }
+                frame
+            }
+            OutputFrame::World => "world".to_string(),
+        };
+        let sightings: Vec<(Vec<Point3<f64>>, Isometry3<f64>)> = markers
+            .into_iter()
+            .zip(&m.poses)
+            .filter_map(|(seen, pose)| seen.map(|s| (s, *pose)))
+            .collect();
+        let merged = merge_markers(&sightings, self.merge_mm);
+        ctx.metric("markers", merged.len() as f64);
+        ctx.metric(
+            "marker_spread_max_mm",
+            merged.iter().map(|m| m.spread_mm).fold(0.0, f64::max),
+        );
+        let merged_positions: Vec<Point3<f64>> = merged.iter().map(|m| m.position).collect();
+        let merged_markers = markers_value(
+            &merged_positions,
+            (0..merged.len() as u32).collect(),
+            &out_frame,
+        )?;
+        let rmse = m.view_rmse_mm.iter().sum::<f64>() / m.view_rmse_mm.len() as f64;
+        ctx.metric("rmse_mm", rmse);
+        ctx.metric("views", views.len() as f64);
+        for (i, r) in m.pairwise_rmse_mm.iter().enumerate() {
+            ctx.metric(&format!("pair_{i}_rmse_mm"), *r);
+        }
+        let (mut pts, mut colors) = (Vec::new(), Vec::new());
+        let mut table = Vec::new();
+        for (i, (view, pose)) in views.iter().zip(&m.poses).enumerate() {
+            pts.extend(view.points.iter().map(|p| pose * p));
+            colors.extend(std::iter::repeat_n(PALETTE[i], view.points.len()).flatten());
+            let h = pose.to_homogeneous();
+            table.push(i as f64);
+            table.extend((0..3).flat_map(|r| (0..4).map(move |c| h[(r, c)])));
+        }
+        let columns: Vec<String> = std::iter::once("view".to_string())
+            .chain((0..3).flat_map(|r| (0..4).map(move |c| format!("m{r}{c}"))))
+            .collect();
+        let poses = Table::new(columns, table).map_err(|e| OpError::invalid(e.0))?;
+        Ok(MultiviewOutputs {
+            cloud: make_cloud(&pts, None, Some(colors.into()), &out_frame)?,
+            poses,
+            markers: merged_markers,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fusegraph_engine::Value;
+
+    fn cloud(frame: &str) -> Value {
+        PointCloud::new(vec![0.0, 0.0, 100.0], None, None, frame)
+            .unwrap()
+            .into()
+    }
+
+    fn op() -> Multiview {
+        Multiview {
+            max_distance_mm: 8.0,
+            trim_ratio: 0.8,
+            kernel_mm: 1.0,
+            voxel_sizes_mm: vec![4.0, 0.0],
+            rounds: 2,
+            tolerance: 1e-5,
+            frame: OutputFrame::World,
+            merge_mm: 4.0,
+            normals_k: 12,
+        }
+    }
+
+    #[test]
+    fn ports_are_read_by_view_and_the_first_two_clouds_are_required() {
+        let decls = <MultiviewInputs as InputSet<'_, Inputs>>::port_decls();
+        let names: Vec<&str> = decls.iter().map(|d| d.name.as_str()).collect();
+        assert_eq!(names.len(), 3 * MAX_VIEWS);
+        assert_eq!(
+            names[..6],
+            ["cloud0", "pose0", "markers0", "cloud1", "pose1", "markers1"]
+        );
+        assert_eq!(names[3 * MAX_VIEWS - 1], "markers7");
+        assert!(!decls[0].optional && !decls[3].optional && decls[6].optional);
+
+        let mut inputs = Inputs::default();
+        inputs.0.insert("cloud0".into(), cloud("camera_a"));
+        let e = MultiviewInputs::from_inputs(&inputs).err().unwrap();
+        assert_eq!(e.port, "cloud1");
+        inputs.0.insert("cloud1".into(), cloud("camera_b"));
+        inputs.0.insert("cloud3".into(), cloud("camera_d"));
+        let read = MultiviewInputs::from_inputs(&inputs).unwrap();
+        assert_eq!(read.views.len(), MAX_VIEWS);
+        let frames: Vec<Option<&str>> = read
+            .views
+            .iter()
+            .map(|v| v.cloud.as_ref().map(|c| c.frame.as_str()))
+            .collect();
+        assert_eq!(
+            frames[..4],
+            [Some("camera_a"), Some("camera_b"), None, Some("camera_d")]
+        );
+        assert!(
+            read.views
+                .iter()
+                .all(|v| v.pose.is_none() && v.markers.is_none())
+        );
+    }
+
+    #[test]
+    fn a_pose_without_its_cloud_and_poses_for_some_views_only_are_refused() {
+        let view = |frame: Option<&str>, pose: bool| ViewInputs {
+            cloud: frame.map(|f| Arc::new(PointCloud::new(vec![0.0; 3], None, None, f).unwrap())),
+            pose: pose.then(|| {
+                Arc::new(Transform {
+                    matrix: crate::camera::isometry_to_matrix(&Isometry3::identity()),
+                    from: frame.unwrap_or("camera").into(),
+                    to: "world".into(),
+                })
+            }),
+            markers: None,
+        };
+        let run = |views: Vec<ViewInputs>| {
+            let mut ctx = RunCtx::new("views", &std::env::temp_dir());
+            op().run(MultiviewInputs { views }, &mut ctx)
+                .map(|_| ())
+                .unwrap_err()
+                .to_string()
+        };
+        let e = run(vec![
+            view(Some("a"), true),
+            view(Some("b"), true),
+            view(None, true),
+        ]);
+        assert!(
+            e.contains("view 2: pose2 or markers2 without cloud2"),
+            "{e}"
+        );
+        let e = run(vec![view(Some("a"), true), view(Some("b"), false)]);
+        assert!(
+            e.contains("connect a pose for every view or for none"),
+            "{e}"
+        );
+        let e = run(vec![view(Some("a"), false), view(Some("b"), false)]);
+        assert!(
+            e.contains("without poses, connect every view's markers"),
+            "{e}"
+        );
+    }
+}

@@ -32,6 +32,22 @@ pub fn stretch(values: &[f32], lo: f32, hi: f32) -> Vec<f32> {
 /// Otsu's threshold over all of `values` with a histogram of `bins` bins
 /// between their minimum and maximum: the value that maximises the
 /// between-class variance. Voxels strictly above it form the foreground.
+///
+/// `None` when the values have no spread (all equal, or none finite) or
+/// `bins < 2`.
+///
+/// # Examples
+///
+/// ```
+/// use fusegraph_nodes::mri::otsu_threshold;
+///
+/// // Dark background near 10, bright markers near 50.
+/// let values = [10.0, 11.0, 12.0, 10.5, 48.0, 49.0, 50.0];
+/// let t = otsu_threshold(&values, 40).unwrap();
+/// assert!(t > 12.0 && t < 48.0, "{t}");
+/// assert_eq!(values.iter().filter(|&&v| v > t).count(), 3);
+/// assert_eq!(otsu_threshold(&[7.0; 4], 40), None);
+/// ```
 pub fn otsu_threshold(values: &[f32], bins: usize) -> Option<f32> {
     let (min, max) = values
         .iter()

@@ -494,6 +494,29 @@ const EDGE_ORIGINS: [([usize; 3], usize); 12] = {
 /// offsets the numbers; centres come after every edge vertex and triangles
 /// cube by cube, so the mesh is the same for any number of chunks and
 /// threads.
+///
+/// # Examples
+///
+/// ```
+/// use fusegraph_engine::value::Grid;
+/// use fusegraph_nodes::mri::marching_cubes;
+///
+/// // One bright voxel in a 3 x 3 x 3 volume with 2 mm voxels: the level
+/// // halfway between it and its neighbours cuts every edge from it at its
+/// // midpoint, 1 mm away, giving an octahedron of radius 1 mm.
+/// let mut values = vec![0.0f32; 27];
+/// values[13] = 1.0;
+/// let grid = Grid::axis_aligned([3, 3, 3], [2.0; 3], [0.0; 3]);
+/// let mesh = marching_cubes(&values, &grid, 0.5);
+/// assert_eq!((mesh.vertices.len(), mesh.triangles.len()), (6, 8));
+/// assert!(mesh.is_closed_and_oriented());
+/// // Octahedron volume 4/3 r^3 with r = 1 mm, centred on the voxel at (2, 2, 2) mm.
+/// assert!((mesh.volume() - 4.0 / 3.0).abs() < 1e-6);
+/// for v in &mesh.vertices {
+///     let r: f32 = v.iter().map(|c| (c - 2.0).powi(2)).sum::<f32>().sqrt();
+///     assert!((r - 1.0).abs() < 1e-6);
+/// }
+/// ```
 pub fn marching_cubes(values: &[f32], grid: &Grid, level: f32) -> TriangleMesh {
     let lat = Lattice::new(values, grid.dims, level);
     let table = table();

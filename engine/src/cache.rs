@@ -136,11 +136,12 @@ impl DiskCache {
     /// Reads and verifies the entry for `key`.
     pub fn load(&self, key: &NodeKey) -> Lookup {
         let path = self.entry_path(key);
-        match std::fs::read(&path) {
-            Ok(bytes) => match decode_entry(&bytes, key) {
+        match read_entry_bytes(&path) {
+            Ok(Ok(bytes)) => match decode_entry(&bytes, key) {
                 Ok(entry) => Lookup::Hit(self.with_paths(entry, PathsTo::Absolute)),
                 Err(why) => Lookup::Corrupt(format!("{}: {why}", path.display())),
             },
+            Ok(Err(why)) => Lookup::Corrupt(format!("{}: {why}", path.display())),
             Err(e) if e.kind() == io::ErrorKind::NotFound => Lookup::Miss,
             Err(e) => Lookup::Corrupt(format!("{}: {e}", path.display())),
         }
@@ -185,6 +186,49 @@ impl DiskCache {
     pub fn remove(&self, key: &NodeKey) {
         let _ = std::fs::remove_file(self.entry_path(key));
     }
+}
+
+/// The bytes of the entry file at `path`, read only once its kind and size
+/// make sense: a regular file (a FIFO would block, a link to a device never
+/// end) whose length is the header's plus the payload length the header
+/// declares. So a damaged entry costs a header read, not its size in memory.
+/// The inner error says why an existing file is not an entry.
+fn read_entry_bytes(path: &Path) -> io::Result<Result<Vec<u8>, String>> {
+    use std::io::Read;
+    let meta = std::fs::metadata(path)?;
+    if !meta.is_file() {
+        return Ok(Err("not a regular file (a FIFO, device or folder)".into()));
+    }
+    let mut file = std::fs::File::open(path)?;
+    let mut header = [0u8; HEADER_LEN];
+    if let Err(e) = file.read_exact(&mut header) {
+        return match e.kind() {
+            io::ErrorKind::UnexpectedEof => Ok(Err(format!(
+                "not a cache entry ({} bytes, shorter than a header)",
+                meta.len()
+            ))),
+            _ => Err(e),
+        };
+    }
+    if &header[..8] != MAGIC {
+        return Ok(Err(format!(
+            "not a cache entry ({} bytes, bad header)",
+            meta.len()
+        )));
+    }
+    let declared = u64::from_le_bytes(header[12..20].try_into().expect("8 bytes"));
+    let expected = (HEADER_LEN as u64).checked_add(declared);
+    if expected != Some(meta.len()) {
+        return Ok(Err(format!(
+            "{} bytes, but its header declares a {declared}-byte payload (truncated, grown or overwritten)",
+            meta.len()
+        )));
+    }
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    bytes.extend_from_slice(&header);
+    // Read no more than declared, should the file grow meanwhile.
+    file.take(declared).read_to_end(&mut bytes)?;
+    Ok(Ok(bytes))
 }
 
 fn encode_entry(key: &NodeKey, entry: &CacheEntry) -> Vec<u8> {

@@ -6,7 +6,7 @@
 use crate::error::{ErrorKind, GraphError, GraphErrors};
 use crate::hash::hash_path;
 use crate::param::ParamValue;
-use crate::validate::ValidGraph;
+use crate::validate::{ValidGraph, ValidNode};
 use std::fmt;
 use std::path::Path;
 
@@ -40,47 +40,23 @@ pub fn node_keys(graph: &ValidGraph, out_dir: &Path) -> Result<Vec<NodeKey>, Gra
     let mut keys: Vec<Option<NodeKey>> = vec![None; graph.nodes.len()];
     let mut errors = Vec::new();
     for &i in &graph.order {
-        let node = &graph.nodes[i];
-        let spec = node.op.spec();
-        let mut h = blake3::Hasher::new();
-        h.update(b"fusegraph node key v1\0");
-        put_str(&mut h, &spec.name);
-        h.update(&spec.version.to_le_bytes());
-        if let Some(origin) = &spec.origin {
-            // A rebuilt plugin invalidates its own ops' results only.
-            put_str(&mut h, &origin.content_hash);
-        }
-        for (name, value) in &node.params.0 {
-            put_str(&mut h, name);
-            if let Err(e) = put_param(&mut h, value) {
-                errors.push(
+        // Upstream keys exist: `order` is topological.
+        let upstream = |j: usize| keys[j].unwrap_or(NodeKey([0; 32]));
+        match node_key(&graph.nodes[i], upstream, out_dir) {
+            Ok(key) => keys[i] = Some(key),
+            Err(problems) => {
+                keys[i] = Some(NodeKey([0; 32]));
+                errors.extend(problems.into_iter().map(|(name, e)| {
                     GraphError::file(
                         ErrorKind::MissingFile,
                         &graph.file,
                         format!("cannot read: {e}"),
                     )
-                    .at_node(&node.id)
-                    .at_key(name),
-                );
+                    .at_node(&graph.nodes[i].id)
+                    .at_key(&name)
+                }));
             }
         }
-        let mut inputs: Vec<_> = node.inputs.iter().collect();
-        inputs.sort_by(|a, b| a.port.cmp(&b.port));
-        for e in inputs {
-            put_str(&mut h, &e.port);
-            put_str(&mut h, &e.from_port);
-            // Upstream keys exist: `order` is topological.
-            h.update(&keys[e.from].map(|k| k.0).unwrap_or_default());
-        }
-        if spec.writes_output {
-            put_str(
-                &mut h,
-                &std::path::absolute(out_dir)
-                    .unwrap_or(out_dir.into())
-                    .to_string_lossy(),
-            );
-        }
-        keys[i] = Some(NodeKey(*h.finalize().as_bytes()));
     }
     if !errors.is_empty() {
         return Err(GraphErrors(errors));
@@ -89,6 +65,53 @@ pub fn node_keys(graph: &ValidGraph, out_dir: &Path) -> Result<Vec<NodeKey>, Gra
         .into_iter()
         .map(|k| k.expect("every node keyed"))
         .collect())
+}
+
+/// The key of one node, given its upstream nodes' keys (by node index):
+/// its op's name, version and origin, its parameters (a path parameter by
+/// its content), its inputs' sources and, for sinks, the output folder.
+/// Errors name each parameter whose file cannot be read. Computed again after
+/// the node ran, it tells whether a file the node read changed meanwhile.
+pub fn node_key(
+    node: &ValidNode,
+    upstream: impl Fn(usize) -> NodeKey,
+    out_dir: &Path,
+) -> Result<NodeKey, Vec<(String, std::io::Error)>> {
+    let spec = node.op.spec();
+    let mut h = blake3::Hasher::new();
+    h.update(b"fusegraph node key v1\0");
+    put_str(&mut h, &spec.name);
+    h.update(&spec.version.to_le_bytes());
+    if let Some(origin) = &spec.origin {
+        // A rebuilt plugin invalidates its own ops' results only.
+        put_str(&mut h, &origin.content_hash);
+    }
+    let mut problems = Vec::new();
+    for (name, value) in &node.params.0 {
+        put_str(&mut h, name);
+        if let Err(e) = put_param(&mut h, value) {
+            problems.push((name.clone(), e));
+        }
+    }
+    let mut inputs: Vec<_> = node.inputs.iter().collect();
+    inputs.sort_by(|a, b| a.port.cmp(&b.port));
+    for e in inputs {
+        put_str(&mut h, &e.port);
+        put_str(&mut h, &e.from_port);
+        h.update(&upstream(e.from).0);
+    }
+    if spec.writes_output {
+        put_str(
+            &mut h,
+            &std::path::absolute(out_dir)
+                .unwrap_or(out_dir.into())
+                .to_string_lossy(),
+        );
+    }
+    if !problems.is_empty() {
+        return Err(problems);
+    }
+    Ok(NodeKey(*h.finalize().as_bytes()))
 }
 
 fn put_str(h: &mut blake3::Hasher, s: &str) {

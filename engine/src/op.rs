@@ -297,22 +297,29 @@ impl Outputs {
     /// Whether every `Path` output still holds the content it was recorded
     /// with (one that was edited or deleted makes a cached result stale).
     pub fn paths_intact(&self) -> Result<(), String> {
-        for (port, value) in &self.0 {
-            if let Value::Path(p) = value {
-                match crate::hash::hash_path(&p.path) {
-                    Ok(h) if h.to_hex().as_str() == p.content_hash => {}
-                    Ok(_) => {
-                        return Err(format!(
-                            "output `{port}`: {} was modified",
-                            p.path.display()
-                        ));
-                    }
-                    Err(e) => return Err(format!("output `{port}`: {e}")),
+        paths_intact(&self.0, "output")
+    }
+}
+
+/// Whether every `Path` among `values` (ports by name) still holds the
+/// content it was recorded with; the error names the `what` ("input",
+/// "output") port and the file.
+pub fn paths_intact(values: &BTreeMap<String, Value>, what: &str) -> Result<(), String> {
+    for (port, value) in values {
+        if let Value::Path(p) = value {
+            match crate::hash::hash_path(&p.path) {
+                Ok(h) if h.to_hex().as_str() == p.content_hash => {}
+                Ok(_) => {
+                    return Err(format!(
+                        "{what} `{port}`: {} was modified",
+                        p.path.display()
+                    ));
                 }
+                Err(e) => return Err(format!("{what} `{port}`: {e}")),
             }
         }
-        Ok(())
     }
+    Ok(())
 }
 
 /// Makes (once) and returns the private folder an op writes its files into;
@@ -461,22 +468,34 @@ impl<'a> RunCtx<'a> {
     /// parent folders. Refuses absolute paths and `..`, so a graph cannot write
     /// outside the output folder.
     pub fn output_path(&self, relative: &str) -> Result<PathBuf, OpError> {
-        let rel = Path::new(relative);
-        let escapes = rel.is_absolute()
-            || rel
-                .components()
-                .any(|c| matches!(c, std::path::Component::ParentDir));
-        if escapes || relative.is_empty() {
-            return Err(OpError::invalid(format!(
-                "output file {relative:?} must be a relative path inside the output folder"
-            )));
+        if let Some(problem) = output_path_problem(relative) {
+            return Err(OpError::invalid(problem));
         }
-        let path = self.out_dir.join(rel);
+        let path = self.out_dir.join(relative);
         if let Some(parent) = path.parent() {
             std::fs::create_dir_all(parent).map_err(|e| OpError::io(parent, e))?;
         }
         Ok(path)
     }
+}
+
+/// Why `relative` cannot name a file under the output folder (absolute, empty,
+/// or climbing out with `..`), or `None` when it can. Validation checks sinks'
+/// `file` parameters with it before anything runs; [`RunCtx::output_path`]
+/// checks again.
+pub fn output_path_problem(relative: &str) -> Option<String> {
+    let rel = Path::new(relative);
+    let escapes = rel.is_absolute()
+        || rel.has_root()
+        || rel.components().any(|c| {
+            matches!(
+                c,
+                std::path::Component::ParentDir | std::path::Component::Prefix(_)
+            )
+        });
+    (escapes || relative.trim().is_empty()).then(|| {
+        format!("output file {relative:?} must be a relative path inside the output folder")
+    })
 }
 
 /// A node type: its declaration and how it runs.

@@ -7,7 +7,7 @@ use crate::cache::{CacheEntry, DiskCache, Lookup, MemoryCache};
 use crate::key::NodeKey;
 use crate::op::{Inputs, OpError, RunCtx};
 use crate::report::{NodeReport, NodeStatus, RunReport};
-use crate::validate::ValidGraph;
+use crate::validate::{ValidGraph, ValidNode};
 use crate::value::Value;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::collections::BTreeSet;
@@ -273,8 +273,9 @@ impl<'a> Executor<'a> {
         let spec = node.op.spec();
         let result = match outcome {
             Ok(Ok(outputs)) => check_outputs(spec, &outputs.0)
-                .map(|()| outputs)
-                .map_err(|e| e.to_string()),
+                .map_err(|e| e.to_string())
+                .and_then(|()| self.inputs_unchanged(node, &inputs, key))
+                .map(|()| outputs),
             Ok(Err(e)) => Err(e.to_string()),
             Err(panic) => Err(format!(
                 "op `{}` panicked: {}",
@@ -409,6 +410,34 @@ impl<'a> Executor<'a> {
 }
 
 /// An op must produce every declared output with its declared type.
+impl Executor<'_> {
+    /// Whether the files a node read (its path parameters and `Path` inputs)
+    /// hold, after it ran, the content its key was made from. A file deleted
+    /// or edited while the node ran (a cache folder cleared under a running
+    /// job) would otherwise store a result of half a set under the key of the
+    /// whole.
+    fn inputs_unchanged(
+        &self,
+        node: &ValidNode,
+        inputs: &Inputs,
+        key: NodeKey,
+    ) -> Result<(), String> {
+        let changed =
+            |why: String| format!("{why} while the node ran: its result is not kept; run again");
+        crate::op::paths_intact(&inputs.0, "input").map_err(changed)?;
+        match crate::key::node_key(node, |j| self.keys[j], &self.options.out_dir) {
+            Ok(again) if again == key => Ok(()),
+            Ok(_) => Err(changed(
+                "a file named by a path parameter was modified".into(),
+            )),
+            Err(problems) => {
+                let (name, e) = &problems[0];
+                Err(changed(format!("parameter `{name}`: {e}")))
+            }
+        }
+    }
+}
+
 fn check_outputs(
     spec: &crate::op::OpSpec,
     outputs: &std::collections::BTreeMap<String, Value>,

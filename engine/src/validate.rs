@@ -59,8 +59,9 @@ impl ValidGraph {
     }
 }
 
-/// Sinks that would write the same file under the output folder (their
-/// `file` parameters are equal): one output would be lost.
+/// Sinks whose `file` would land outside the output folder (absolute, or
+/// with `..`), or that would write the same file (their `file` parameters are
+/// equal): one output would be lost.
 fn output_clashes(file: &std::path::Path, nodes: &[ValidNode]) -> Vec<GraphError> {
     let mut writers: HashMap<&str, &str> = HashMap::new();
     let mut errors = Vec::new();
@@ -68,6 +69,14 @@ fn output_clashes(file: &std::path::Path, nodes: &[ValidNode]) -> Vec<GraphError
         let Some(ParamValue::String(name)) = n.params.0.get("file") else {
             continue;
         };
+        if let Some(problem) = crate::op::output_path_problem(name) {
+            errors.push(
+                GraphError::file(ErrorKind::BadParam, file, problem)
+                    .at_node(&n.id)
+                    .at_key("file"),
+            );
+            continue;
+        }
         if let Some(first) = writers.insert(name.as_str(), n.id.as_str()) {
             errors.push(
                 GraphError::file(

@@ -318,16 +318,13 @@ fn sinks_rerun_when_their_file_or_output_folder_changes() {
     assert!(other.join("sub/c.txt").exists());
     assert!(other.join("report.json").exists());
 
-    let escape = run_file(&reg, &g, &["w.file=../x.txt"], Some(&cache), &out).unwrap();
+    // A file outside the output folder is refused before anything runs.
+    let Err(escape) = run_file(&reg, &g, &["w.file=../x.txt"], Some(&cache), &out) else {
+        panic!("a sink writing ../x.txt ran");
+    };
     assert!(
-        escape
-            .report
-            .node("w")
-            .unwrap()
-            .error
-            .as_deref()
-            .unwrap()
-            .contains("inside the output folder")
+        escape.to_string().contains("inside the output folder"),
+        "{escape}"
     );
 }
 
@@ -571,4 +568,59 @@ fn an_unwritable_files_folder_falls_back_to_the_output_folder_with_a_note() {
         dir.display()
     );
     assert!(dir.join("slice1.txt").is_file());
+}
+
+#[test]
+fn a_result_read_from_files_deleted_during_the_node_is_not_cached() {
+    let t = tempfile::tempdir().unwrap();
+    let (reg, counters) = registry();
+    let g = write_graph(
+        t.path(),
+        "g.toml",
+        "[node.gen]\nop = \"test.generate\"\nfiles = 4\n\n\
+         [node.count]\nop = \"test.count_then_lose\"\nin.dir = \"gen.dir\"\n",
+    );
+    let cache = t.path().join("cache");
+    let out = t.path().join("out");
+    // The first run loses a file after reading the folder: the node fails,
+    // naming the input, and stores nothing.
+    let first = run_file(&reg, &g, &[], Some(&cache), &out).unwrap();
+    let count = first.report.node("count").unwrap();
+    assert_eq!(count.status, Failed);
+    let why = count.error.as_deref().unwrap();
+    assert!(
+        why.contains("input `dir`") && why.contains("while the node ran"),
+        "{why}"
+    );
+    // The next run regenerates the folder and counts all of it afresh.
+    let second = run_file(&reg, &g, &[], Some(&cache), &out).unwrap();
+    assert_eq!(statuses(&second)["gen"], Ran);
+    assert_eq!(statuses(&second)["count"], Ran);
+    assert_eq!(scalar(&second, 1, "files"), 4.0);
+    assert_eq!(counters.runs("count"), 2);
+    let third = run_file(&reg, &g, &[], Some(&cache), &out).unwrap();
+    assert_eq!(statuses(&third)["count"], Cached);
+}
+
+#[test]
+fn a_result_read_from_a_file_edited_during_the_node_is_not_cached() {
+    let t = tempfile::tempdir().unwrap();
+    let (reg, _) = registry();
+    std::fs::write(t.path().join("data.bin"), b"12345").unwrap();
+    let g = write_graph(
+        t.path(),
+        "g.toml",
+        "[node.f]\nop = \"test.read_then_touch\"\npath = \"data.bin\"\n",
+    );
+    let cache = t.path().join("cache");
+    let out = t.path().join("out");
+    let first = run_file(&reg, &g, &[], Some(&cache), &out).unwrap();
+    let f = first.report.node("f").unwrap();
+    assert_eq!(f.status, Failed);
+    let why = f.error.as_deref().unwrap();
+    assert!(why.contains("path parameter was modified"), "{why}");
+    // The file as it is now: 14 bytes, computed, not a stale 5.
+    let second = run_file(&reg, &g, &[], Some(&cache), &out).unwrap();
+    assert_eq!(statuses(&second)["f"], Ran);
+    assert_eq!(scalar(&second, 0, "bytes"), 14.0);
 }

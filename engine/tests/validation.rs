@@ -378,6 +378,23 @@ fn two_sinks_writing_one_file_are_refused() {
 }
 
 #[test]
+fn a_sink_file_outside_the_output_folder_is_refused_before_running() {
+    for file in ["../../x.txt", "/tmp/x.txt", "a/../../x.txt", ""] {
+        let sink = format!(
+            "{OK}\n[node.w1]\nop = \"test.write\"\nin.value = \"a.value\"\nfile = {file:?}\n"
+        );
+        let errs = errors(&sink, &[]);
+        expect(
+            &errs,
+            ErrorKind::BadParam,
+            "w1",
+            Some("file"),
+            &["must be a relative path inside the output folder"],
+        );
+    }
+}
+
+#[test]
 fn a_set_value_with_a_line_break_is_refused() {
     let errs = errors(OK, &["a.value=2\n[node.x]"]);
     assert_eq!(errs[0].kind, ErrorKind::BadOverride, "{errs:?}");

@@ -327,7 +327,10 @@ pub fn load_sweep(file: &Path) -> Result<SweepPlan, GraphErrors> {
         None => {}
         Some(toml::Value::Table(named)) => {
             for (name, body) in named {
+                // A variant's name is a folder under --out: no `.`, `..` or
+                // hidden names.
                 let ok = !name.is_empty()
+                    && !name.starts_with('.')
                     && name
                         .chars()
                         .all(|c| c.is_ascii_alphanumeric() || "._-".contains(c));
@@ -337,7 +340,7 @@ pub fn load_sweep(file: &Path) -> Result<SweepPlan, GraphErrors> {
                         overrides: overrides(t, &format!("[variant.{name}]"), &mut errors),
                     }),
                     _ => errors.push(
-                        err(format!("[variant.{name}]: a table of NODE.KEY = value, named with letters, digits, '.', '_', '-'"))
+                        err(format!("[variant.{name}]: a table of NODE.KEY = value, named with letters, digits, '.', '_', '-' (not starting with '.': the name is a folder under --out)"))
                             .at_node(name),
                     ),
                 }
@@ -455,5 +458,19 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("more than 10000 variants"), "{e}");
+    }
+
+    #[test]
+    fn variant_names_stay_inside_the_output_folder() {
+        for name in ["..", ".", ".hidden", "a/b", "..%2f"] {
+            let e = plan(&format!(
+                "[sweep]\ngraph = \"g\"\n[variant.\"{name}\"]\n\"a.b\" = 1\n"
+            ))
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains("folder under --out"), "{name}: {e}");
+            assert!(e.contains(&format!("[variant.{name}]")), "{name}: {e}");
+        }
+        assert!(plan("[sweep]\ngraph = \"g\"\n[variant.\"v1.2\"]\n\"a.b\" = 1\n").is_ok());
     }
 }

@@ -204,6 +204,48 @@ pub fn registry() -> (Registry, Arc<Counters>) {
             Ok(Outputs::new().with("dir", path_value(&dir)?))
         }),
     );
+    add(
+        OpSpec::new(
+            "test.count_then_lose",
+            1,
+            "Counts a folder's files; on its first run, deletes one after reading (a cache cleared under a running job)",
+        )
+        .input("dir", &[ValueType::Path], "The folder")
+        .output("files", ValueType::Scalar, "How many files it held"),
+        Box::new(|i, _, ctx, counters| {
+            let dir = &i.get::<fusegraph_engine::value::PathValue>("dir")?.path;
+            let mut files: Vec<_> = std::fs::read_dir(dir)
+                .map_err(|e| OpError::io(dir, e))?
+                .map(|e| e.unwrap().path())
+                .collect();
+            files.sort();
+            if counters.runs(ctx.node_id()) == 1 {
+                std::fs::remove_file(&files[0]).unwrap();
+            }
+            Ok(Outputs::new().with("files", files.len() as f64))
+        }),
+    );
+    add(
+        OpSpec::new(
+            "test.read_then_touch",
+            1,
+            "Size of a file; on its first run, appends to it after reading",
+        )
+        .param(ParamSpec::path("path", "A file"))
+        .output("bytes", ValueType::Scalar, "Its size"),
+        Box::new(|_, p, ctx, counters| {
+            let path = p.path("path")?;
+            let n = std::fs::read(&path)
+                .map_err(|e| OpError::io(&path, e))?
+                .len();
+            if counters.runs(ctx.node_id()) == 1 {
+                let mut text = std::fs::read(&path).unwrap();
+                text.extend(b" and more");
+                std::fs::write(&path, text).unwrap();
+            }
+            Ok(Outputs::new().with("bytes", n as f64))
+        }),
+    );
     (r, counters)
 }
 

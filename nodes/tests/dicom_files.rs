@@ -420,7 +420,7 @@ fn an_export_folder_skips_non_images_with_a_note_per_file() {
         "sr.dcm: skipped: Basic Text SR (no pixel data)",
         "rtplan.dcm: skipped: RT Plan (no pixel data)",
         "sub/pr.dcm: skipped: Grayscale Softcopy Presentation State (no pixel data)",
-        "README.txt: skipped: not a DICOM file (no 128-byte preamble and \"DICM\")",
+        "README.txt: skipped: not a DICOM file (no 128-byte preamble and \"DICM\", nor a bare data set)",
     ];
     for e in expected {
         assert!(

@@ -4,7 +4,7 @@ use super::header::{
     MAX_SPACING_MM, PixelFormat, check_orientation, check_pixel_size, check_pixel_spacing,
     finite_numbers, number_of_frames, pixel_format,
 };
-use super::layout::{scan_layout, tag_name};
+use super::layout::{looks_like_bare_dataset, scan_layout, tag_name};
 use dicom_core::Tag;
 use dicom_dictionary_std::tags;
 use dicom_object::{DefaultDicomObject, InMemDicomObject};
@@ -41,18 +41,59 @@ pub struct Frame {
     pub format: PixelFormat,
     /// Pixel values with the modality rescale applied, row-major.
     pub pixels: Vec<f32>,
+    /// Whether the file carries overlay planes (OverlayData, 60xx,3000),
+    /// which are not loaded.
+    pub has_overlay: bool,
+}
+
+/// How a file holds a DICOM data set, from its first bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Encoding {
+    /// A Part 10 file: 128-byte preamble, "DICM", file meta group.
+    Part10,
+    /// A data set alone, implicit VR little endian (see
+    /// [`looks_like_bare_dataset`]).
+    Bare,
 }
 
 /// Whether a file starts like a DICOM Part 10 file ("DICM" after a 128-byte
-/// preamble). Other files in a series folder (notes, DICOMDIR viewers' files) are
-/// skipped rather than failing the load.
-pub fn looks_like_dicom(path: &Path) -> bool {
+/// preamble) or a bare implicit VR little endian data set, and which. Other
+/// files in a series folder (notes, DICOMDIR viewers' files) are skipped
+/// rather than failing the load.
+pub fn dicom_encoding(path: &Path) -> Option<Encoding> {
     use std::io::Read;
-    let mut head = [0u8; 132];
-    std::fs::File::open(path)
-        .and_then(|mut f| f.read_exact(&mut head))
-        .is_ok_and(|()| &head[128..132] == b"DICM")
+    let mut file = std::fs::File::open(path).ok()?;
+    let file_len = file.metadata().ok()?.len();
+    let mut head = Vec::with_capacity(132);
+    (&mut file).take(132).read_to_end(&mut head).ok()?;
+    if head.len() == 132 && &head[128..132] == b"DICM" {
+        Some(Encoding::Part10)
+    } else if looks_like_bare_dataset(&head, file_len) {
+        Some(Encoding::Bare)
+    } else {
+        None
+    }
 }
+
+/// Opens a data set written without the Part 10 header as implicit VR little
+/// endian, with a file meta group made from its SOP class and instance.
+fn open_bare(path: &Path) -> Result<DefaultDicomObject, String> {
+    let syntax = dicom_transfer_syntax_registry::TransferSyntaxRegistry
+        .get(IMPLICIT_LE)
+        .ok_or("implicit VR little endian is not registered")?;
+    let file = std::fs::File::open(path).map_err(|e| e.to_string())?;
+    let obj = InMemDicomObject::read_dataset_with_ts(std::io::BufReader::new(file), syntax)
+        .map_err(|e| error_chain(&e))?;
+    obj.with_meta(dicom_object::meta::FileMetaTableBuilder::new().transfer_syntax(IMPLICIT_LE))
+        .map_err(|e| {
+            format!(
+                "no SOP class or instance UID to read it by ({})",
+                error_chain(&e)
+            )
+        })
+}
+
+const IMPLICIT_LE: &str = "1.2.840.10008.1.2";
 
 fn text(obj: &InMemDicomObject, tag: Tag) -> String {
     obj.element_opt(tag)
@@ -226,14 +267,26 @@ const JPEG_LS: [&str; 2] = ["1.2.840.10008.1.2.4.80", "1.2.840.10008.1.2.4.81"];
 /// the last defence.
 pub fn read_file(path: &Path) -> Result<FileContent, String> {
     check_lengths(path)?;
-    let obj: DefaultDicomObject = catch_quietly(|| dicom_object::open_file(path))
-        .map_err(|panic| {
-            format!(
-                "{}: unreadable DICOM file: the parser failed on it: {panic}",
-                path.display()
-            )
-        })?
-        .map_err(|e| format!("{}: unreadable DICOM file: {e}", path.display()))?;
+    let bare = dicom_encoding(path) == Some(Encoding::Bare);
+    let what = if bare {
+        "unreadable DICOM data set (no Part 10 header; read as implicit VR little endian)"
+    } else {
+        "unreadable DICOM file"
+    };
+    let obj: DefaultDicomObject = catch_quietly(|| {
+        if bare {
+            open_bare(path)
+        } else {
+            dicom_object::open_file(path).map_err(|e| e.to_string())
+        }
+    })
+    .map_err(|panic| {
+        format!(
+            "{}: {what}: the parser failed on it: {panic}",
+            path.display()
+        )
+    })?
+    .map_err(|e| format!("{}: {what}: {e}", path.display()))?;
     if let Some(why) = not_an_image(&obj) {
         return Ok(FileContent::NotImage(why));
     }
@@ -544,6 +597,9 @@ fn decode_frames(
         )
     })?;
     let (rows, cols) = (format.rows as usize, format.cols as usize);
+    let has_overlay = obj.tags().any(|t| {
+        (0x6000..=0x601E).contains(&t.group()) && t.group() % 2 == 0 && t.element() == 0x3000
+    });
     let mut out = Vec::with_capacity(frames as usize);
     for (f, place) in (0..frames).zip(placements) {
         let mut pixels = frame_values(&decoded, f, path)?;
@@ -559,6 +615,7 @@ fn decode_frames(
             }
         }
         out.push(Frame {
+            has_overlay,
             file: path.to_path_buf(),
             frame: f,
             series_uid: text(obj, tags::SERIES_INSTANCE_UID),

@@ -21,6 +21,70 @@ const DEFLATED: [&str; 2] = ["1.2.840.10008.1.2.1.99", "1.2.840.10008.1.2.8.1"];
 const UNDEFINED: u32 = 0xFFFF_FFFF;
 const PIXEL_DATA: Tag = Tag(0x7FE0, 0x0010);
 
+/// Walks the file meta group (explicit VR little endian, group 0002) and
+/// returns its TransferSyntaxUID (empty if absent), leaving `w` at the first
+/// element of the data set; `None` when the stream cannot be rewound there.
+fn read_meta_group<R: Read + Seek>(w: &mut Walker<R>) -> Result<Option<String>, LengthError> {
+    let mut ts = String::new();
+    loop {
+        let start = w.pos;
+        let Some((tag, _, len)) = w.header(Syntax::ExplicitLe) else {
+            break;
+        };
+        if tag.group() != 0x0002 {
+            if w.r.seek(SeekFrom::Start(start)).is_err() {
+                return Ok(None);
+            }
+            w.pos = start;
+            break;
+        }
+        w.check(tag, len, false, "1.2.840.10008.1.2.1 (file meta group)")?;
+        if tag == Tag(0x0002, 0x0010) && len <= 64 {
+            let mut b = vec![0u8; len as usize];
+            if w.r.read_exact(&mut b).is_err() {
+                break;
+            }
+            w.pos += len as u64;
+            ts = String::from_utf8_lossy(&b)
+                .trim_end_matches(['\0', ' '])
+                .to_string();
+        } else if w.skip(len).is_err() {
+            break;
+        }
+    }
+    Ok(Some(ts))
+}
+
+/// Whether `head`, a file's first bytes, starts like a DICOM data set written
+/// without the Part 10 header (no preamble, no "DICM", no file meta group), as
+/// older archives and some PACS exports do: an implicit VR little endian
+/// element of group 0008 (the first group of every image object) whose
+/// declared length fits the file. Such files are read as implicit VR little
+/// endian, the only syntax the standard allows without a meta group.
+pub fn looks_like_bare_dataset(head: &[u8], file_len: u64) -> bool {
+    if head.len() < 8 {
+        return false;
+    }
+    let group = u16::from_le_bytes([head[0], head[1]]);
+    let element = u16::from_le_bytes([head[2], head[3]]);
+    let len = u32::from_le_bytes([head[4], head[5], head[6], head[7]]);
+    // Explicit VR would put two upper-case letters where the length starts.
+    let explicit = head[4].is_ascii_uppercase() && head[5].is_ascii_uppercase();
+    group == 0x0008 && element < 0x0100 && !explicit && u64::from(len) + 8 <= file_len
+}
+
+/// Reads as many bytes as `r` has, up to `buf`'s length.
+fn read_up_to(r: &mut impl Read, buf: &mut [u8]) -> usize {
+    let mut n = 0;
+    while n < buf.len() {
+        match r.read(&mut buf[n..]) {
+            Ok(0) | Err(_) => break,
+            Ok(k) => n += k,
+        }
+    }
+    n
+}
+
 /// What [`scan_layout`] learned about a file.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Layout {
@@ -249,7 +313,8 @@ impl<R: Read + Seek> Walker<R> {
 /// refuses any defined length longer than the rest of the file. Elements of
 /// undefined length (sequences, items, encapsulated pixel data) are entered,
 /// defined-length ones skipped whole. Returns `Ok(None)` when the stream does
-/// not start like a Part 10 file (left to the parser to report); a deflated
+/// not start like a Part 10 file or a bare data set
+/// ([`looks_like_bare_dataset`]; left to the parser to report); a deflated
 /// data set is not walked.
 pub fn scan_layout<R: Read + Seek>(r: R, file_len: u64) -> Result<Option<Layout>, LengthError> {
     let mut w = Walker {
@@ -257,46 +322,31 @@ pub fn scan_layout<R: Read + Seek>(r: R, file_len: u64) -> Result<Option<Layout>
         pos: 0,
         len: file_len,
     };
-    let Some(head) = w.bytes::<132>() else {
+    let mut head = [0u8; 132];
+    let head_len = read_up_to(&mut w.r, &mut head);
+    let (start, bare) = if head_len == 132 && &head[128..132] == b"DICM" {
+        (132, false)
+    } else if head_len >= 4 && &head[0..4] == b"DICM" {
+        (4, false)
+    } else if looks_like_bare_dataset(&head[..head_len], file_len) {
+        (0, true)
+    } else {
         return Ok(None);
     };
-    if &head[128..132] != b"DICM" {
-        if &head[0..4] != b"DICM" {
-            return Ok(None);
-        }
-        if w.r.seek(SeekFrom::Start(4)).is_err() {
-            return Ok(None);
-        }
-        w.pos = 4;
+    if w.r.seek(SeekFrom::Start(start)).is_err() {
+        return Ok(None);
     }
-    // File meta group: explicit VR little endian, group 0002.
-    let mut ts = String::new();
-    loop {
-        let start = w.pos;
-        let Some((tag, _, len)) = w.header(Syntax::ExplicitLe) else {
-            break;
-        };
-        if tag.group() != 0x0002 {
-            if w.r.seek(SeekFrom::Start(start)).is_err() {
-                return Ok(None);
-            }
-            w.pos = start;
-            break;
+    w.pos = start;
+    // File meta group: explicit VR little endian, group 0002 (none in a bare
+    // data set, which is implicit VR little endian throughout).
+    let ts = if bare {
+        IMPLICIT_LE.to_string()
+    } else {
+        match read_meta_group(&mut w)? {
+            Some(ts) => ts,
+            None => return Ok(None),
         }
-        w.check(tag, len, false, "1.2.840.10008.1.2.1 (file meta group)")?;
-        if tag == Tag(0x0002, 0x0010) && len <= 64 {
-            let mut b = vec![0u8; len as usize];
-            if w.r.read_exact(&mut b).is_err() {
-                break;
-            }
-            w.pos += len as u64;
-            ts = String::from_utf8_lossy(&b)
-                .trim_end_matches(['\0', ' '])
-                .to_string();
-        } else if w.skip(len).is_err() {
-            break;
-        }
-    }
+    };
     let mut layout = Layout {
         file_len,
         transfer_syntax: ts.clone(),

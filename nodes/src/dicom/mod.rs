@@ -21,14 +21,17 @@ mod layout;
 pub mod ops;
 mod series;
 
-pub use frames::{FileContent, Frame, read_file, read_frames};
+pub use frames::{Encoding, FileContent, Frame, dicom_encoding, read_file, read_frames};
 pub use header::{
     MAX_DECODE_BYTES, MAX_SPACING_MM, MAX_VOXELS, ORIENTATION_TOLERANCE, PixelFormat,
     check_orientation, check_pixel_size, check_pixel_spacing, expected_pixel_bytes, finite_numbers,
     number_of_frames, pixel_format,
 };
-pub use layout::{Layout, LengthError, scan_layout, tag_name};
-pub use series::{LoadedSeries, MAX_NAMED_SKIPS, SeriesError, assemble, load_series};
+pub use layout::{Layout, LengthError, looks_like_bare_dataset, scan_layout, tag_name};
+pub use series::{
+    LoadOptions, LoadedSeries, MAX_NAMED_SKIPS, SeriesError, assemble, load_series,
+    load_series_with,
+};
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;

@@ -2,7 +2,7 @@
 //! regular grid (one orientation, one size, evenly spaced along the normal), and
 //! building the voxel -> patient affine.
 
-use super::frames::{FileContent, Frame, looks_like_dicom, read_file};
+use super::frames::{FileContent, Frame, dicom_encoding, read_file};
 use super::header::PixelFormat;
 use fusegraph_engine::value::Grid;
 use rayon::prelude::*;
@@ -46,9 +46,12 @@ pub enum SeriesError {
     /// Frames are not parallel.
     #[error("slices have different orientations (a localiser or mixed series?): {0}")]
     MixedOrientation(String),
-    /// Frames are unevenly spaced, missing or repeated.
+    /// Frames are unevenly spaced or missing.
     #[error("slices are not evenly spaced along the normal: {0}")]
     Spacing(String),
+    /// Two different images at one position.
+    #[error("duplicate slices: {0}")]
+    Duplicate(String),
     /// Files differ in pixel format (BitsAllocated, BitsStored,
     /// PixelRepresentation, SamplesPerPixel, PhotometricInterpretation, Rows,
     /// Columns).
@@ -57,6 +60,22 @@ pub enum SeriesError {
     /// Frames differ in size or pixel spacing, or are sheared.
     #[error("slices do not form one grid: {0}")]
     Grid(String),
+}
+
+impl SeriesError {
+    /// The error with the folder (or file) it was found in named, for the
+    /// geometry checks that see frames but not where they came from.
+    pub fn in_folder(self, dir: &Path) -> Self {
+        let named = |msg: String| format!("{msg} (in {})", dir.display());
+        match self {
+            SeriesError::MixedOrientation(m) => SeriesError::MixedOrientation(named(m)),
+            SeriesError::Spacing(m) => SeriesError::Spacing(named(m)),
+            SeriesError::Duplicate(m) => SeriesError::Duplicate(named(m)),
+            SeriesError::Format(m) => SeriesError::Format(named(m)),
+            SeriesError::Grid(m) => SeriesError::Grid(named(m)),
+            other => other,
+        }
+    }
 }
 
 /// A volume read from a series.
@@ -122,41 +141,84 @@ fn shown(file: &Path, root: &Path) -> String {
         .to_string()
 }
 
+/// How [`load_series_with`] treats what it finds.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct LoadOptions {
+    /// SeriesInstanceUID to read when the folder holds several.
+    pub series_uid: Option<String>,
+    /// Whether a DICOM file that cannot be read fails the load (true) or is
+    /// skipped with a note (false, the default: a skipped slice inside the
+    /// stack is still refused by the spacing check, so nothing is lost
+    /// silently).
+    pub strict: bool,
+}
+
+/// [`load_series_with`] with the default options and an optional series.
+pub fn load_series(path: &Path, series_uid: Option<&str>) -> Result<LoadedSeries, SeriesError> {
+    load_series_with(
+        path,
+        &LoadOptions {
+            series_uid: series_uid.map(str::to_string),
+            strict: false,
+        },
+    )
+}
+
 /// Reads a folder of slices (or one single- or multi-frame file) as a volume.
 ///
 /// What a CD or PACS export puts beside the images is skipped, one warning per
-/// file naming it and why: files without the DICOM Part 10 header (128-byte
-/// preamble and "DICM"), DICOMDIR, and objects without pixel data (structured
-/// reports, RT structure sets and plans, presentation states, ...). A DICOM
-/// image that fails to parse or decode is an error naming it, as is a folder
-/// with no image at all (naming what was skipped).
-pub fn load_series(path: &Path, series_uid: Option<&str>) -> Result<LoadedSeries, SeriesError> {
+/// file naming it and why: files that are neither DICOM Part 10 (128-byte
+/// preamble and "DICM") nor a bare implicit VR data set, DICOMDIR, and objects
+/// without pixel data (structured reports, RT structure sets and plans,
+/// presentation states, ...). Exact copies of a file (same bytes) are dropped
+/// with a note. A DICOM file that fails to parse or decode is skipped with a
+/// note naming it and why, or is an error with [`LoadOptions::strict`]; one
+/// given alone, and a folder with no image at all (naming what was skipped),
+/// are errors.
+pub fn load_series_with(path: &Path, options: &LoadOptions) -> Result<LoadedSeries, SeriesError> {
+    let series_uid = options.series_uid.as_deref();
     let mut skipped = Vec::new();
     let files: Vec<PathBuf> = if path.is_dir() {
         let mut files = Vec::new();
         collect_files(path, &mut files)
             .map_err(|e| SeriesError::File(format!("{}: {e}", path.display())))?;
         files.sort();
-        let (dicom, other): (Vec<_>, Vec<_>) = files.into_iter().partition(|f| looks_like_dicom(f));
+        let (dicom, other): (Vec<_>, Vec<_>) =
+            files.into_iter().partition(|f| dicom_encoding(f).is_some());
         for f in &other {
             skipped.push(format!(
-                "{}: skipped: not a DICOM file (no 128-byte preamble and \"DICM\")",
+                "{}: skipped: not a DICOM file (no 128-byte preamble and \"DICM\", nor a bare data set)",
                 shown(f, path)
             ));
         }
-        dicom
+        drop_exact_copies(dicom, path, &mut skipped)
     } else {
         vec![path.to_path_buf()]
     };
-    let contents: Vec<FileContent> = files
-        .par_iter()
-        .map(|f| read_file(f))
-        .collect::<Result<_, _>>()
-        .map_err(SeriesError::File)?;
+    let single = !path.is_dir();
+    let contents: Vec<Result<FileContent, String>> =
+        files.par_iter().map(|f| read_file(f)).collect();
     let mut groups: BTreeMap<String, Vec<Frame>> = BTreeMap::new();
+    let mut overlays = 0;
+    let mut unreadable = Vec::new();
     for (file, content) in files.iter().zip(contents) {
+        let content = match content {
+            Ok(c) => c,
+            Err(e) if options.strict || single => return Err(SeriesError::File(e)),
+            Err(e) => {
+                skipped.push(format!(
+                    "{}: skipped: {}",
+                    shown(file, path),
+                    e.strip_prefix(&format!("{}: ", file.display()))
+                        .unwrap_or(&e)
+                ));
+                unreadable.push(e);
+                continue;
+            }
+        };
         match content {
             FileContent::Frames(frames) => {
+                overlays += usize::from(frames.first().is_some_and(|f| f.has_overlay));
                 for frame in frames {
                     groups
                         .entry(frame.series_uid.clone())
@@ -168,6 +230,15 @@ pub fn load_series(path: &Path, series_uid: Option<&str>) -> Result<LoadedSeries
                 skipped.push(format!("{}: skipped: {why}", shown(file, path)));
             }
         }
+    }
+    if groups.is_empty() && !unreadable.is_empty() {
+        // Nothing loaded: the files' own errors say more than "no image".
+        let n = unreadable.len();
+        let mut first = unreadable.remove(0);
+        if n > 1 {
+            first += &format!(" (and {} other DICOM files could not be read)", n - 1);
+        }
+        return Err(SeriesError::File(first));
     }
     if groups.is_empty() {
         return Err(SeriesError::Empty {
@@ -198,8 +269,24 @@ pub fn load_series(path: &Path, series_uid: Option<&str>) -> Result<LoadedSeries
         .map(|f| &f.file)
         .collect::<std::collections::BTreeSet<_>>()
         .len();
-    let (grid, voxels, more) = assemble(frames)?;
+    let (grid, voxels, more) = assemble(frames).map_err(|e| {
+        let e = e.in_folder(path);
+        match e {
+            // A gap where an unreadable file was skipped: say which and why.
+            SeriesError::Spacing(msg) if !unreadable.is_empty() => SeriesError::Spacing(format!(
+                "{msg}; {} unreadable file(s) were skipped: {}",
+                unreadable.len(),
+                unreadable[..unreadable.len().min(MAX_NAMED_SKIPS)].join("; ")
+            )),
+            other => other,
+        }
+    })?;
     let mut warnings = Vec::new();
+    if overlays > 0 {
+        warnings.push(format!(
+            "{overlays} file(s) carry overlay planes (60xx,3000: graphics or ROIs burnt over the image); they are not loaded"
+        ));
+    }
     if skipped.len() > MAX_NAMED_SKIPS {
         let n = skipped.len() - MAX_NAMED_SKIPS;
         skipped.truncate(MAX_NAMED_SKIPS);
@@ -214,6 +301,46 @@ pub fn load_series(path: &Path, series_uid: Option<&str>) -> Result<LoadedSeries
         files: file_count,
         warnings,
     })
+}
+
+/// `files` without exact copies (the same bytes, so the same SOP instance: a
+/// folder copied into itself, a file exported twice), each dropped with a
+/// note naming the file it copies. Only files of equal size are compared.
+fn drop_exact_copies(files: Vec<PathBuf>, root: &Path, notes: &mut Vec<String>) -> Vec<PathBuf> {
+    let sizes: Vec<Option<u64>> = files
+        .iter()
+        .map(|f| std::fs::metadata(f).ok().map(|m| m.len()))
+        .collect();
+    let mut by_size: BTreeMap<u64, usize> = BTreeMap::new();
+    for s in sizes.iter().flatten() {
+        *by_size.entry(*s).or_default() += 1;
+    }
+    let hashes: Vec<Option<blake3::Hash>> = files
+        .par_iter()
+        .zip(&sizes)
+        .map(|(f, s)| {
+            s.filter(|s| by_size[s] > 1)
+                .and_then(|_| std::fs::read(f).ok())
+                .map(|bytes| blake3::hash(&bytes))
+        })
+        .collect();
+    let mut first_of: BTreeMap<[u8; 32], usize> = BTreeMap::new();
+    let mut kept = Vec::with_capacity(files.len());
+    for (i, (file, hash)) in files.iter().zip(&hashes).enumerate() {
+        if let Some(h) = hash {
+            if let Some(&j) = first_of.get(h.as_bytes()) {
+                notes.push(format!(
+                    "{}: dropped: an exact copy of {}",
+                    shown(file, root),
+                    shown(&files[j], root)
+                ));
+                continue;
+            }
+            first_of.insert(*h.as_bytes(), i);
+        }
+        kept.push(file.clone());
+    }
+    kept
 }
 
 fn collect_files(dir: &Path, out: &mut Vec<PathBuf>) -> std::io::Result<()> {
@@ -232,6 +359,23 @@ fn collect_files(dir: &Path, out: &mut Vec<PathBuf>) -> std::io::Result<()> {
         }
     }
     Ok(())
+}
+
+/// A spacing error lists every position for stacks of at most this many slices.
+const MAX_LISTED_SLICES: usize = 12;
+
+/// Shear below this is rounding in the positions, not worth a note.
+const MAX_UNNOTED_SHEAR_DEG: f64 = 0.01;
+
+/// The angle between the slice step and the slice normal, degrees: 0 for a
+/// stack of slices straight above each other.
+fn shear_deg(step: [f64; 3], normal: [f64; 3]) -> f64 {
+    let along = dot(step, normal).abs();
+    let len = dot(step, step).sqrt();
+    if len == 0.0 {
+        return 0.0;
+    }
+    (along / len).clamp(-1.0, 1.0).acos().to_degrees()
 }
 
 fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
@@ -391,23 +535,48 @@ pub fn assemble(mut frames: Vec<Frame>) -> Result<(Grid, Vec<f32>, Vec<String>),
         let gaps: Vec<f64> = depths.windows(2).map(|w| w[1] - w[0]).collect();
         let mut sorted = gaps.clone();
         sorted.sort_by(f64::total_cmp);
-        let median = sorted[sorted.len() / 2];
+        // The lower median: a missing slice makes a gap larger, never smaller.
+        let median = sorted[(sorted.len() - 1) / 2];
         if let Some(i) = gaps.iter().position(|&g| g < 1e-3) {
-            return Err(SeriesError::Spacing(format!(
-                "{} and {} are both at {:.4} mm along the normal (a repeated slice?)",
+            return Err(SeriesError::Duplicate(format!(
+                "{} and {} are two different images at the same position, {:.4} mm along the normal \
+                 (two acquisitions or exports of one slice, or two series under one UID?)",
                 name(&frames[i]),
                 name(&frames[i + 1]),
                 depths[i]
             )));
         }
         let tolerance = (0.01 * median).max(1e-3);
-        if gaps.iter().any(|g| (g - median).abs() > tolerance) {
-            let positions: Vec<String> = depths.iter().map(|d| format!("{d:.3}")).collect();
-            let gap_list: Vec<String> = gaps.iter().map(|g| format!("{g:.3}")).collect();
+        let worst = gaps
+            .iter()
+            .enumerate()
+            .max_by(|a, b| (a.1 - median).abs().total_cmp(&(b.1 - median).abs()))
+            .filter(|(_, g)| (*g - median).abs() > tolerance);
+        if let Some((i, gap)) = worst {
+            // Every position and gap, for a short stack; a long one's list
+            // would bury the gap.
+            let listed = if n <= MAX_LISTED_SLICES {
+                let positions: Vec<String> = depths.iter().map(|d| format!("{d:.3}")).collect();
+                let gap_list: Vec<String> = gaps.iter().map(|g| format!("{g:.3}")).collect();
+                format!(
+                    "; positions {} mm, gaps {} mm",
+                    positions.join(", "),
+                    gap_list.join(", ")
+                )
+            } else {
+                let odd = gaps
+                    .iter()
+                    .filter(|g| (*g - median).abs() > tolerance)
+                    .count();
+                format!("; {odd} of {} gaps differ", gaps.len())
+            };
             return Err(SeriesError::Spacing(format!(
-                "positions {} mm, gaps {} mm (a missing slice, or a different series?)",
-                positions.join(", "),
-                gap_list.join(", ")
+                "a gap of {gap:.3} mm between {} ({:.3} mm) and {} ({:.3} mm), where slices are {median:.3} mm apart \
+                 (a missing slice, or a different series?){listed}",
+                name(&frames[i]),
+                depths[i],
+                name(&frames[i + 1]),
+                depths[i + 1],
             )));
         }
         let (p0, pn) = (frames[0].position, frames[n - 1].position);
@@ -425,6 +594,14 @@ pub fn assemble(mut frames: Vec<Frame>) -> Result<(Grid, Vec<f32>, Vec<String>),
                     name(f)
                 )));
             }
+        }
+        let shear = shear_deg(step, normal);
+        if shear > MAX_UNNOTED_SHEAR_DEG {
+            warnings.push(format!(
+                "the stack is sheared by {shear:.3} deg (gantry tilt, or slices offset in-plane): \
+                 its voxel grid is not orthogonal; NRRD keeps it exactly, and io.write_volume \
+                 resamples it to an orthogonal grid for NIfTI (ITK reads no sheared NIfTI)"
+            ));
         }
         if let Some(t) = first
             .slice_thickness
@@ -472,6 +649,7 @@ mod tests {
             slice_thickness: Some(2.0),
             format: format(16),
             pixels: vec![z as f32; 6],
+            has_overlay: false,
         }
     }
 
@@ -533,15 +711,41 @@ mod tests {
         ])
         .unwrap_err();
         assert!(
-            matches!(err, SeriesError::Spacing(_)) && err.to_string().contains("gaps 2.000, 4.000"),
+            matches!(err, SeriesError::Spacing(_))
+                && err.to_string().contains("gaps 2.000, 4.000")
+                && err
+                    .to_string()
+                    .contains("between slice_2.dcm (2.000 mm) and slice_6.dcm"),
             "{err}"
         );
         let err = assemble(vec![frame(0.0, AXIAL), frame(0.0, AXIAL)]).unwrap_err();
-        assert!(err.to_string().contains("repeated slice"), "{err}");
+        assert!(matches!(err, SeriesError::Duplicate(_)), "{err}");
+        assert!(err.to_string().contains("same position"), "{err}");
         let tilted = [1.0, 0.0, 0.0, 0.0, 0.8, 0.6];
         let err = assemble(vec![frame(0.0, AXIAL), frame(2.0, tilted)]).unwrap_err();
         assert!(matches!(err, SeriesError::MixedOrientation(_)), "{err}");
         assert!(err.to_string().contains("slice_2.dcm"), "{err}");
+    }
+
+    #[test]
+    fn a_sheared_stack_loads_with_its_shear_noted() {
+        // Each slice 2 mm above the last and 1 mm to the side: 26.565 deg.
+        let frames: Vec<Frame> = (0..4)
+            .map(|k| {
+                let mut f = frame(2.0 * k as f64, AXIAL);
+                f.position[0] += k as f64;
+                f
+            })
+            .collect();
+        let (grid, _, warnings) = assemble(frames).unwrap();
+        assert_eq!(grid.to_patient([0.0, 0.0, 3.0]), [13.0, 20.0, 6.0]);
+        assert_eq!(warnings.len(), 1, "{warnings:?}");
+        assert!(
+            warnings[0].contains("sheared by 26.565 deg"),
+            "{warnings:?}"
+        );
+        let straight: Vec<Frame> = (0..4).map(|k| frame(2.0 * k as f64, AXIAL)).collect();
+        assert!(assemble(straight).unwrap().2.is_empty());
     }
 
     #[test]

@@ -80,6 +80,11 @@ pub fn load_image_within(path: &std::path::Path, max_pixels: u64) -> Result<Imag
 /// the header's size is checked first, then the decoder runs with its
 /// allocations bounded by that size.
 fn decode_rgb(path: &std::path::Path, bytes: &[u8], max_pixels: u64) -> Result<Image, OpError> {
+    if is_jpeg(bytes) {
+        let (rgb, width, height) = decode_jpeg(path, bytes, max_pixels, ColourOut::Rgb)?;
+        return Image::new(width, height, 3, Pixels::U8(rgb.into()))
+            .map_err(|e| OpError::invalid(e.0));
+    }
     let named = |e: image::ImageError| OpError::invalid(format!("{}: {e}", path.display()));
     let reader = || {
         image::ImageReader::new(std::io::Cursor::new(bytes))
@@ -97,6 +102,65 @@ fn decode_rgb(path: &std::path::Path, bytes: &[u8], max_pixels: u64) -> Result<I
     let (w, h) = img.dimensions();
     Image::new(w as usize, h as usize, 3, Pixels::U8(img.into_raw().into()))
         .map_err(|e| OpError::invalid(e.0))
+}
+
+fn is_jpeg(bytes: &[u8]) -> bool {
+    bytes.starts_with(&[0xFF, 0xD8])
+}
+
+/// What [`decode_jpeg`] returns per pixel.
+#[derive(Clone, Copy)]
+enum ColourOut {
+    /// Y of the file's YCbCr: one sample.
+    Luma,
+    /// R, G, B.
+    Rgb,
+}
+
+/// Decodes a JPEG with zune-jpeg in strict mode: a truncated file ("premature
+/// end"), a corrupt entropy-coded segment or a marker out of place is an
+/// error naming the file, not an image whose lower part is filler. The
+/// header's size is checked against `max_pixels` before decoding. Returns
+/// the samples (1 or 3 per pixel), width and height, px.
+fn decode_jpeg(
+    path: &std::path::Path,
+    bytes: &[u8],
+    max_pixels: u64,
+    out: ColourOut,
+) -> Result<(Vec<u8>, usize, usize), OpError> {
+    use zune_core::bytestream::ZCursor;
+    use zune_core::colorspace::ColorSpace;
+    use zune_core::options::DecoderOptions;
+    let (space, channels) = match out {
+        ColourOut::Luma => (ColorSpace::Luma, 1),
+        ColourOut::Rgb => (ColorSpace::RGB, 3),
+    };
+    let failed = |e: zune_jpeg::errors::DecodeErrors| {
+        OpError::invalid(format!(
+            "{}: the JPEG does not decode cleanly ({e}): a truncated or corrupt file?",
+            path.display()
+        ))
+    };
+    let options = DecoderOptions::default()
+        .jpeg_set_out_colorspace(space)
+        .set_strict_mode(true);
+    let mut decoder = zune_jpeg::JpegDecoder::new_with_options(ZCursor::new(bytes), options);
+    decoder.decode_headers().map_err(failed)?;
+    if let Some((w, h)) = decoder.dimensions() {
+        check_size(path, (w as u64, h as u64), max_pixels)?;
+    }
+    let samples = decoder.decode().map_err(failed)?;
+    let (width, height) = decoder
+        .dimensions()
+        .ok_or_else(|| OpError::invalid(format!("{}: no image size", path.display())))?;
+    if samples.len() != width * height * channels {
+        return Err(OpError::invalid(format!(
+            "{}: decoded {} samples for {width} x {height} px",
+            path.display(),
+            samples.len()
+        )));
+    }
+    Ok((samples, width, height))
 }
 
 /// A grey image: levels 0..1, row-major.
@@ -123,31 +187,8 @@ pub fn load_grey(path: &std::path::Path) -> Result<GreyImage, OpError> {
 /// `max_pixels` before decoding it.
 pub fn load_grey_within(path: &std::path::Path, max_pixels: u64) -> Result<GreyImage, OpError> {
     let bytes = std::fs::read(path).map_err(|e| OpError::io(path, e))?;
-    if bytes.starts_with(&[0xFF, 0xD8]) {
-        use zune_core::bytestream::ZCursor;
-        use zune_core::colorspace::ColorSpace;
-        use zune_core::options::DecoderOptions;
-        let options = DecoderOptions::default().jpeg_set_out_colorspace(ColorSpace::Luma);
-        let mut decoder = zune_jpeg::JpegDecoder::new_with_options(ZCursor::new(&bytes), options);
-        decoder
-            .decode_headers()
-            .map_err(|e| OpError::invalid(format!("{}: {e:?}", path.display())))?;
-        if let Some((w, h)) = decoder.dimensions() {
-            check_size(path, (w as u64, h as u64), max_pixels)?;
-        }
-        let luma = decoder
-            .decode()
-            .map_err(|e| OpError::invalid(format!("{}: {e:?}", path.display())))?;
-        let (width, height) = decoder
-            .dimensions()
-            .ok_or_else(|| OpError::invalid(format!("{}: no image size", path.display())))?;
-        if luma.len() != width * height {
-            return Err(OpError::invalid(format!(
-                "{}: decoded {} samples for {width} x {height} px",
-                path.display(),
-                luma.len()
-            )));
-        }
+    if is_jpeg(&bytes) {
+        let (luma, width, height) = decode_jpeg(path, &bytes, max_pixels, ColourOut::Luma)?;
         let levels = luma.iter().map(|&v| v as f32 / 255.0).collect();
         return Ok(GreyImage {
             width,
@@ -274,5 +315,29 @@ mod tests {
         let e = load_grey_within(&photo, 100_000).unwrap_err().to_string();
         assert!(e.contains("declares 1280 x 720 px"), "{e}");
         assert!(load_grey_within(&photo, 1_000_000).is_ok());
+    }
+
+    #[test]
+    fn a_truncated_jpeg_is_an_error_naming_the_file() {
+        let photo = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../tests/data/chessboard/calibration03.jpg");
+        let bytes = std::fs::read(&photo).unwrap();
+        let t = tempfile::tempdir().unwrap();
+        let cut = t.path().join("cut.jpg");
+        std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+        for e in [
+            load_image(&cut).unwrap_err().to_string(),
+            load_grey(&cut).unwrap_err().to_string(),
+        ] {
+            assert!(
+                e.contains("cut.jpg") && e.contains("does not decode cleanly"),
+                "{e}"
+            );
+        }
+        // The whole file decodes, in colour and grey, to the same size.
+        let rgb = load_image(&photo).unwrap();
+        let grey = load_grey(&photo).unwrap();
+        assert_eq!((rgb.width, rgb.height, rgb.channels), (1280, 720, 3));
+        assert_eq!((grey.width, grey.height), (1280, 720));
     }
 }

@@ -3,6 +3,7 @@
 //! functions here (images, disparity maps, volumes, meshes, markers, tables,
 //! rigs, transforms, JSON); the ops, one file each, are in [`ops`].
 
+mod deshear;
 mod disk_size;
 mod disparity;
 mod images;
@@ -16,6 +17,7 @@ mod source_file;
 mod tables;
 mod volumes;
 
+pub use deshear::{Shear, deshear, grid_shear, orthogonal_grid};
 pub use disparity::{
     decode_pfm, decode_pgm, disparity_png, encode_pfm, finite_percentiles, read_disparity, viridis,
 };
@@ -25,7 +27,10 @@ pub use images::{
 };
 pub use itk_transform::{itk_transform_text, read_itk_transform};
 pub use json::value_to_json;
-pub use markers::{markers_csv, parse_markups, parse_points_csv, slicer_markups};
+pub use markers::{
+    ReadPoints, SlicerMarkups, markers_csv, parse_markups, parse_points_csv, read_markups,
+    slicer_markups, write_markers_csv,
+};
 pub use meshes::{write_ply, write_stl};
 pub use opencv_yaml::rig_yaml;
 pub use source_file::{SourceDir, SourceFile};

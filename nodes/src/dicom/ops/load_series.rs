@@ -1,6 +1,6 @@
 //! `dicom.load_series`: a DICOM series as a volume.
 
-use crate::dicom::load_series;
+use crate::dicom::{LoadOptions, load_series_with};
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{PathValue, Volume};
 use std::path::PathBuf;
@@ -8,13 +8,16 @@ use std::path::PathBuf;
 /// Read a DICOM series (a folder of slices, or one multi-frame file) as a
 /// volume in patient LPS mm
 #[derive(Op)]
-#[op(name = "dicom.load_series", version = 3)]
+#[op(name = "dicom.load_series", version = 4)]
 pub struct LoadSeries {
     /// Folder of slices or a multi-frame file, relative to the graph
     pub path: Option<PathBuf>,
     /// SeriesInstanceUID to read when the folder holds several
     #[param(default = "")]
     pub series_uid: String,
+    /// Fail on a DICOM file that cannot be read, instead of skipping it with a note (a skipped slice inside the stack is refused as a gap either way)
+    #[param(default = false)]
+    pub strict: bool,
 }
 
 #[derive(Inputs)]
@@ -49,8 +52,12 @@ impl RunOp for LoadSeries {
             }
         };
         let uid = &self.series_uid;
-        let series = load_series(&path, (!uid.is_empty()).then_some(uid.as_str()))
-            .map_err(|e| OpError::invalid(e.to_string()))?;
+        let options = LoadOptions {
+            series_uid: (!uid.is_empty()).then(|| uid.clone()),
+            strict: self.strict,
+        };
+        let series =
+            load_series_with(&path, &options).map_err(|e| OpError::invalid(e.to_string()))?;
         for w in &series.warnings {
             ctx.note(w.clone());
         }
@@ -81,6 +88,7 @@ mod tests {
         let given = |path: Option<&str>| LoadSeries {
             path: path.map(PathBuf::from),
             series_uid: String::new(),
+            strict: false,
         };
         let e = given(None)
             .run(LoadSeriesInputs { dir: None }, &mut ctx)

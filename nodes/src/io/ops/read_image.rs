@@ -6,7 +6,7 @@ use fusegraph_engine::value::Image;
 
 /// Read an image file (PNG or JPEG) as 8-bit RGB
 #[derive(Op)]
-#[op(name = "io.read_image", version = 2)]
+#[op(name = "io.read_image", version = 3)]
 pub struct ReadImage {
     /// Which file: `file` in the `dir` input, or `path`.
     #[param(flatten)]

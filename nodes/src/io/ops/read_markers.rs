@@ -1,13 +1,13 @@
 //! `io.read_markers`: points a user marked (targets in MRI, say) from a 3D
 //! Slicer markups file or a CSV.
 
-use crate::io::{SourceDir, SourceFile, parse_markups, parse_points_csv};
+use crate::io::{ReadPoints, SourceDir, SourceFile, parse_points_csv, read_markups};
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::Markers;
 
 /// Read marked points (e.g. targets in MRI) from a 3D Slicer .mrk.json or a CSV with x, y, z columns (mm)
 #[derive(Op)]
-#[op(name = "io.read_markers", version = 1)]
+#[op(name = "io.read_markers", version = 2)]
 pub struct ReadMarkers {
     /// Which file: `file` in the `dir` input, or `path`.
     #[param(flatten)]
@@ -29,14 +29,18 @@ impl RunOp for ReadMarkers {
 
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
         let path = self.source.resolve(inputs.dir.as_deref())?;
-        let text = std::fs::read_to_string(&path).map_err(|e| OpError::io(&path, e))?;
         let parsed = if path.to_string_lossy().ends_with(".json") {
-            parse_markups(&text)
+            let file = std::fs::File::open(&path).map_err(|e| OpError::io(&path, e))?;
+            read_markups(file)
         } else {
+            let text = std::fs::read_to_string(&path).map_err(|e| OpError::io(&path, e))?;
             parse_points_csv(&text)
         };
-        let (points, ids) =
+        let ReadPoints { points, ids, notes } =
             parsed.map_err(|e| OpError::invalid(format!("{}: {e}", path.display())))?;
+        for note in notes {
+            ctx.note(format!("{}: {note}", path.display()));
+        }
         ctx.metric("points", points.len() as f64);
         let markers = Markers::new(
             points.iter().flatten().copied().collect::<Vec<f64>>(),

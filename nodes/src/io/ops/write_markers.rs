@@ -1,10 +1,12 @@
 //! `io.write_markers`: marker centres as a 3D Slicer markups file (`.mrk.json`,
 //! LPS) and as CSV.
 
-use crate::io::{markers_csv, slicer_markups};
+use crate::io::{slicer_markups, write_markers_csv};
 use fusegraph_engine::path_value;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Markers, PathValue};
+use std::io::{BufWriter, Write};
+use std::path::Path;
 
 /// Write markers as a 3D Slicer .mrk.json (LPS) and a CSV
 #[derive(Op)]
@@ -39,14 +41,27 @@ impl RunOp for WriteMarkers {
             tracing::warn!(node = %ctx.node_id(), "markers are in frame `{}`; Slicer will read them as LPS", markers.frame);
         }
         let json_path = ctx.output_path(&format!("{name}.mrk.json"))?;
-        let text =
-            serde_json::to_string_pretty(&slicer_markups(&markers, "M")).expect("JSON value");
-        std::fs::write(&json_path, text + "\n").map_err(|e| OpError::io(&json_path, e))?;
+        write_streamed(&json_path, |out| {
+            serde_json::to_writer_pretty(&mut *out, &slicer_markups(&markers, "M"))?;
+            writeln!(out)
+        })?;
         let csv_path = ctx.output_path(&format!("{name}.csv"))?;
-        std::fs::write(&csv_path, markers_csv(&markers)).map_err(|e| OpError::io(&csv_path, e))?;
+        write_streamed(&csv_path, |out| write_markers_csv(&markers, out))?;
         Ok(WriteMarkersOutputs {
             markups: path_value(&json_path)?,
             csv: path_value(&csv_path)?,
         })
     }
+}
+
+/// Writes `path` through a buffer, so memory stays flat however many markers.
+fn write_streamed(
+    path: &Path,
+    write: impl FnOnce(&mut BufWriter<std::fs::File>) -> std::io::Result<()>,
+) -> Result<(), OpError> {
+    let file = std::fs::File::create(path).map_err(|e| OpError::io(path, e))?;
+    let mut out = BufWriter::new(file);
+    write(&mut out)
+        .and_then(|()| out.flush())
+        .map_err(|e| OpError::io(path, e))
 }

@@ -138,6 +138,29 @@ fn check_rgb(rgb: &[u8], width: usize, height: usize, what: &str) -> Result<(), 
     Ok(())
 }
 
+/// The largest chroma (max - min of R, G, B, in 8-bit levels) of any pixel:
+/// 0 for an image that is grey however it is stored (a greyscale camera's
+/// frames saved as RGB, a grey conversion upstream), where no hue exists to
+/// find markers by. JPEG rounding leaves a grey image within 1 or 2 levels.
+///
+/// # Examples
+///
+/// ```
+/// use fusegraph_nodes::stereo::max_chroma;
+///
+/// assert_eq!(max_chroma(&[10, 10, 10, 200, 200, 200]), 0);
+/// assert_eq!(max_chroma(&[10, 10, 10, 40, 200, 60]), 160);
+/// ```
+pub fn max_chroma(rgb: &[u8]) -> u8 {
+    rgb.chunks_exact(3)
+        .map(|p| p.iter().max().unwrap() - p.iter().min().unwrap())
+        .max()
+        .unwrap_or(0)
+}
+
+/// Chroma at or below this many levels is grey stored as colour.
+pub const GREY_CHROMA_LEVELS: u8 = 2;
+
 /// Pixels of `rgb` (interleaved 8-bit) inside the HSV thresholds.
 pub fn colour_mask(rgb: &[u8], p: &BlobParams) -> Vec<bool> {
     rgb.chunks_exact(3)

@@ -5,7 +5,10 @@ use super::shape_error;
 use crate::calib::rectification_of;
 use crate::camera::CameraModel;
 use crate::stereo::markers::detections_png;
-use crate::stereo::{BlobParams, PairParams, stereo_markers, stereo_markers_unrectified};
+use crate::stereo::{
+    BlobParams, GREY_CHROMA_LEVELS, PairParams, max_chroma, stereo_markers,
+    stereo_markers_unrectified,
+};
 use fusegraph_engine::figure::FigureData;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Image, Markers, Pixels, Rectification, StereoRig, Table};
@@ -13,7 +16,7 @@ use fusegraph_engine::value::{Image, Markers, Pixels, Rectification, StereoRig, 
 /// Coloured markers found by HSV thresholds in both rectified images, paired
 /// along rows, triangulated
 #[derive(Debug, Clone, PartialEq, Op)]
-#[op(name = "stereo.hsv_markers", version = 4)]
+#[op(name = "stereo.hsv_markers", version = 5)]
 pub struct HsvMarkers {
     /// Hue range [min, max]; min > max wraps through 0 (default: the
     /// phantom's green)
@@ -122,9 +125,24 @@ impl HsvMarkers {
 }
 
 /// The interleaved 8-bit RGB samples of input `port`.
+/// The 8-bit RGB pixels of `img`; an error naming `port` for another kind of
+/// image, or for one that is grey throughout (no hue to find markers by).
 fn rgb8<'a>(img: &'a Image, port: &str) -> Result<&'a [u8], OpError> {
     match &img.pixels {
-        Pixels::U8(p) if img.channels == 3 => Ok(p),
+        Pixels::U8(p) if img.channels == 3 => {
+            let chroma = max_chroma(p);
+            if chroma <= GREY_CHROMA_LEVELS {
+                return Err(OpError::invalid(format!(
+                    "input `{port}` is grey (R, G and B within {chroma} levels in every pixel): \
+                     markers are found by their hue, which needs colour photos \
+                     (a greyscale camera, or a grey conversion upstream?)"
+                )));
+            }
+            Ok(p)
+        }
+        Pixels::U8(_) if img.channels == 1 => Err(OpError::invalid(format!(
+            "input `{port}` is a one-channel (grey) image: markers are found by their hue, which needs colour (RGB) photos"
+        ))),
         _ => Err(OpError::invalid(format!(
             "input `{port}`: expected an 8-bit RGB image, got {} channel(s) of {}",
             img.channels,
@@ -304,7 +322,26 @@ mod tests {
             ..base()
         };
         let err = op.run(grey, &mut ctx()).err().unwrap().to_string();
-        assert!(err.contains("`left`") && err.contains("8-bit RGB"), "{err}");
+        assert!(
+            err.contains("`left`") && err.contains("one-channel"),
+            "{err}"
+        );
+        // Grey photos stored as RGB (R = G = B, give or take JPEG rounding).
+        let grey_rgb: Vec<u8> = (0..1800)
+            .flat_map(|i| {
+                let v = (i % 200) as u8;
+                [v, v + 1, v]
+            })
+            .collect();
+        let grey_rgb = HsvMarkersInputs {
+            right: Arc::new(Image::new(60, 30, 3, Pixels::U8(grey_rgb.into())).unwrap()),
+            ..base()
+        };
+        let err = op.run(grey_rgb, &mut ctx()).err().unwrap().to_string();
+        assert!(
+            err.contains("input `right` is grey") && err.contains("hue"),
+            "{err}"
+        );
         let sizes = HsvMarkersInputs {
             rectification: rectification(64, 30),
             ..base()

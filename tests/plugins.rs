@@ -30,6 +30,8 @@ fn plugin(name: &str) -> PathBuf {
                 "-p",
                 "test-plugin-no-symbols",
                 "-p",
+                "test-plugin-data-symbols",
+                "-p",
                 "test-plugin-misbehaving",
             ])
             .env("CARGO_TARGET_DIR", &target)
@@ -233,7 +235,11 @@ fn bad_libraries_are_refused_naming_the_file() {
             plugin("test_plugin_no_symbols"),
             "not a fusegraph plugin: it has no `fusegraph_plugin_abi_version` symbol",
         ),
-        (junk, "not a loadable library"),
+        (
+            plugin("test_plugin_data_symbols"),
+            "its `fusegraph_plugin_abi_version` symbol is data, not a function",
+        ),
+        (junk, "not a loadable library: dlopen failed: "),
         (t.path().join("missing.so"), "missing.so"),
     ];
     for (lib, says) in cases {

@@ -139,6 +139,49 @@ fn photos_pair_by_the_number_in_their_names() {
 }
 
 #[test]
+fn repeated_photos_of_one_pose_are_left_out_and_too_few_poses_fail() {
+    // Eight real pairs, then views 8-11 copied from views 0 and 1.
+    let mut files = eight_pairs();
+    for (v, from) in [(8, 0), (9, 1), (10, 0), (11, 1)] {
+        files.push((format!("left_{from:02}.png"), format!("left_{v:02}.png")));
+        files.push((format!("right_{from:02}.png"), format!("right{v:02}.png")));
+    }
+    let t = photo_folder(&as_refs(&files));
+    let o = fusegraph(&["run", "stereo.toml"], t.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r = report(t.path());
+    assert_eq!(r["metrics"]["stereo.pairs"], 8.0);
+    let stereo = notes(&r, "stereo");
+    for (v, from) in [(8, 0), (9, 1), (10, 0), (11, 1)] {
+        assert!(
+            stereo.iter().any(|n| n.starts_with(&format!(
+                "view {v}: the same board pose as view {from} in both photos (corners within 0.00 px)"
+            ))),
+            "{stereo:?}"
+        );
+    }
+    // Twelve photos of two poses: an error, not a fit that looks good.
+    let files: Vec<(String, String)> = (0..12)
+        .flat_map(|v| {
+            let from = v % 2;
+            [
+                (format!("left_{from:02}.png"), format!("left_{v:02}.png")),
+                (format!("right_{from:02}.png"), format!("right{v:02}.png")),
+            ]
+        })
+        .collect();
+    let t = photo_folder(&as_refs(&files));
+    let o = fusegraph(&["run", "stereo.toml"], t.path());
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let err = stereo_error(t.path());
+    assert!(
+        err.starts_with("2 usable pairs of 12 views, 3 needed"),
+        "{err}"
+    );
+    assert!(err.contains("a repeated photo"), "{err}");
+}
+
+#[test]
 fn a_pair_of_different_sizes_is_an_error_naming_the_view() {
     let t = photo_folder(&as_refs(&eight_pairs()));
     let right = t.path().join("photos/right05.png");

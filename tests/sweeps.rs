@@ -157,6 +157,18 @@ fn shards_started_at_once_on_one_cache_merge_into_the_single_process_comparison(
         // hold their output folders, so the keys themselves differ there).
         assert_eq!(counts.len(), once.len(), "{folder}");
     }
+    // A shard of another sweep refuses the folder, naming both plans.
+    std::fs::copy(t.path().join("surface.toml"), t.path().join("other.toml")).unwrap();
+    let o = fusegraph(
+        &["sweep", "other.toml", "--out", "at-once", "--shard", "2/2"],
+        t.path(),
+    );
+    let e = stderr(&o);
+    assert_ne!(o.status.code(), Some(0), "{e}");
+    assert!(
+        e.contains("sweep.json holds sweep `surface` from") && e.contains("other.toml"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -178,6 +190,21 @@ fn a_bad_variant_is_refused_before_anything_runs() {
         "{e}"
     );
     assert!(!t.path().join("bad-out").exists(), "nothing ran");
+    // Metrics of nodes the graph does not have.
+    std::fs::write(
+        t.path().join("metrics.toml"),
+        "[sweep]\ngraph = \"mri.toml\"\nrank_by = \"surfce.area_mm2\"\nmetrics = [\"nowhere.x\"]\n[sweep.vary]\n\"otsu.bins\" = [64, 128]\n",
+    )
+    .unwrap();
+    let o = fusegraph(&["sweep", "metrics.toml", "--out", "m-out"], t.path());
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(2), "{e}");
+    assert!(
+        e.contains("\"surfce.area_mm2\" names node `surfce`, which the graph does not have (did you mean `surface`?)"),
+        "{e}"
+    );
+    assert!(e.contains("\"nowhere.x\" names node `nowhere`"), "{e}");
+    assert!(!t.path().join("m-out").exists(), "nothing ran");
     let o = fusegraph(&["sweep", "--merge", "nowhere"], t.path());
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert!(stderr(&o).contains("sweep.json"), "{}", stderr(&o));

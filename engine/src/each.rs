@@ -47,6 +47,10 @@ impl Group {
     }
 }
 
+/// The most nodes `[each.NAME]` groups may bring a graph to: twice the
+/// 100,000-node graph `fusegraph bench scheduler --nodes 100000` validates.
+pub const MAX_NODES: usize = 200_000;
+
 /// Node tables as written: (id, body).
 type NodeTables = Vec<(String, toml::Value)>;
 
@@ -56,10 +60,15 @@ fn copy_id(id: &str, value: &str) -> String {
 
 /// Expands group `name` (the body of `[each.NAME]`) into node tables: (id,
 /// body) pairs for the usual node parser, in value order then file order.
+///
+/// `budget` is how many nodes the copies may add: a group that would make
+/// more is refused before any copy is made, so a small file cannot cost a
+/// gigabyte.
 pub(crate) fn expand(
     name: &str,
     body: &toml::Value,
     file: &Path,
+    budget: usize,
 ) -> Result<(Group, NodeTables), Vec<GraphError>> {
     let err =
         |msg: String| GraphError::file(ErrorKind::Structure, file, format!("[each.{name}]: {msg}"));
@@ -100,8 +109,9 @@ pub(crate) fn expand(
             Vec::new()
         }
     };
-    for (i, v) in values.iter().enumerate() {
-        if values[..i].contains(v) {
+    let mut seen = std::collections::HashSet::with_capacity(values.len());
+    for v in &values {
+        if !seen.insert(v) {
             errors.push(err(format!("value {v} appears twice")).at_key("values"));
         }
     }
@@ -112,6 +122,19 @@ pub(crate) fn expand(
             toml::Table::new()
         }
     };
+    let copies = values.len().saturating_mul(nodes.len());
+    if copies > budget {
+        errors.push(
+            err(format!(
+                "{} values x {} nodes make {copies} nodes, more than the {budget} a graph may still add \
+                 (at most {} nodes in all)",
+                values.len(),
+                nodes.len(),
+                MAX_NODES
+            ))
+            .at_key("values"),
+        );
+    }
     if !errors.is_empty() {
         return Err(errors);
     }
@@ -229,7 +252,7 @@ in.rig = "calib.rig"
 "#,
         )
         .unwrap();
-        let (group, nodes) = expand("view", &body, Path::new("g.toml")).unwrap();
+        let (group, nodes) = expand("view", &body, Path::new("g.toml"), 1000).unwrap();
         let ids: Vec<&str> = nodes.iter().map(|(id, _)| id.as_str()).collect();
         assert_eq!(ids, ["read_0", "grey_0", "read_5", "grey_5"]);
         let read5 = &nodes[2].1;
@@ -249,7 +272,7 @@ in.rig = "calib.rig"
     fn bad_groups_say_what_is_wrong() {
         let bad = |text: &str| {
             let body: toml::Value = toml::from_str(text).unwrap();
-            let e = expand("view", &body, Path::new("g.toml")).unwrap_err();
+            let e = expand("view", &body, Path::new("g.toml"), 1000).unwrap_err();
             e.iter()
                 .map(|e| e.to_string())
                 .collect::<Vec<_>>()
@@ -260,5 +283,24 @@ in.rig = "calib.rig"
         assert!(bad("values = [1.5]\n[node.a]\nop = \"x\"").contains("whole number"));
         assert!(bad("values = [1]").contains("has no nodes"));
         assert!(bad("values = [1]\ncolour = 2\n[node.a]\nop = \"x\"").contains("unknown key"));
+    }
+
+    #[test]
+    fn a_group_that_would_make_too_many_nodes_is_refused_before_copying() {
+        let values: Vec<String> = (0..10_000).map(|i| i.to_string()).collect();
+        let nodes: String = (0..100)
+            .map(|i| format!("[node.n{i}]\nop = \"t.x\"\n"))
+            .collect();
+        let text = format!("values = [{}]\n{nodes}", values.join(", "));
+        let body: toml::Value = toml::from_str(&text).unwrap();
+        let e = expand("v", &body, Path::new("g.toml"), MAX_NODES).unwrap_err();
+        assert_eq!(e.len(), 1, "{e:?}");
+        assert!(
+            e[0].message
+                .contains("[each.v]: 10000 values x 100 nodes make 1000000 nodes"),
+            "{}",
+            e[0].message
+        );
+        assert_eq!(e[0].key.as_deref(), Some("values"));
     }
 }

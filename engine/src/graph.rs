@@ -12,6 +12,7 @@
 //! bins = 256                     # every other key is a parameter
 //! ```
 
+pub use crate::each::MAX_NODES;
 use crate::each::{Group, expand};
 use crate::error::{ErrorKind, GraphError, GraphErrors, closest};
 use std::path::{Path, PathBuf};
@@ -166,7 +167,8 @@ impl GraphDoc {
                 ("sweep" | "variant", toml::Value::Table(_)) => {}
                 ("each", toml::Value::Table(g)) => {
                     for (name, body) in g {
-                        match expand(name, body, file) {
+                        let budget = MAX_NODES.saturating_sub(nodes.len());
+                        match expand(name, body, file, budget) {
                             Ok((group, copies)) => {
                                 for (id, body) in copies {
                                     match parse_node(&id, &body, file) {

@@ -47,6 +47,52 @@ impl Loaded {
     }
 }
 
+/// An error and its sources: libloading says only "dlopen failed" and keeps
+/// the loader's reason (a missing dependency, a wrong architecture, an
+/// undefined symbol) as the source.
+fn with_sources(e: &dyn std::error::Error) -> String {
+    let mut text = e.to_string();
+    let mut source = e.source();
+    while let Some(s) = source {
+        text = format!("{text}: {s}");
+        source = s.source();
+    }
+    text
+}
+
+/// Refuses a symbol that is not code (a variable exported under a plugin
+/// symbol's name): calling it would crash the process with no message. On
+/// Linux the address is looked up in `/proc/self/maps`; elsewhere, and if
+/// the maps cannot be read, the symbol is trusted.
+fn check_code(address: usize, symbol: &str, shown: &impl std::fmt::Display) -> Result<(), String> {
+    match executable(address) {
+        Some(false) => Err(format!(
+            "plugin {shown}: its `{symbol}` symbol is data, not a function: not a fusegraph plugin \
+             (or one built wrongly); it was not called"
+        )),
+        _ => Ok(()),
+    }
+}
+
+/// Whether `address` lies in an executable mapping of this process, if the
+/// system says.
+fn executable(address: usize) -> Option<bool> {
+    let maps = std::fs::read_to_string("/proc/self/maps").ok()?;
+    for line in maps.lines() {
+        let mut parts = line.split_whitespace();
+        let (range, perms) = (parts.next()?, parts.next()?);
+        let (lo, hi) = range.split_once('-')?;
+        let (lo, hi) = (
+            usize::from_str_radix(lo, 16).ok()?,
+            usize::from_str_radix(hi, 16).ok()?,
+        );
+        if (lo..hi).contains(&address) {
+            return Some(perms.as_bytes().get(2) == Some(&b'x'));
+        }
+    }
+    Some(false)
+}
+
 /// Loads the plugin at `path` and registers its ops; returns their names.
 /// Errors name the file (and the op, where one is at fault).
 pub fn load_plugin(path: &Path, registry: &mut Registry) -> Result<Vec<String>, String> {
@@ -66,17 +112,24 @@ pub fn load_plugin(path: &Path, registry: &mut Registry) -> Result<Vec<String>, 
         .to_string();
     // SAFETY: loading a library runs its initialisers; that is what loading a
     // plugin means, and the user named this file.
-    let library = unsafe { libloading::Library::new(&file) }
-        .map_err(|e| format!("plugin {shown}: not a loadable library: {e}"))?;
+    tracing::info!(plugin = %shown, "loading");
+    let library = unsafe { libloading::Library::new(&file) }.map_err(|e| {
+        format!(
+            "plugin {shown}: not a loadable library: {}",
+            with_sources(&e)
+        )
+    })?;
     let version = {
         // SAFETY: the symbol's type is fixed by every version of the ABI.
         let f = unsafe { library.get::<extern "C" fn() -> u32>(abi::ABI_VERSION_SYMBOL.as_bytes()) }
-            .map_err(|_| {
+            .map_err(|e| {
                 format!(
-                    "plugin {shown}: not a fusegraph plugin: it has no `{}` symbol (export it with fusegraph_plugin_api::export_plugin!)",
-                    abi::ABI_VERSION_SYMBOL
+                    "plugin {shown}: not a fusegraph plugin: it has no `{}` symbol (export it with fusegraph_plugin_api::export_plugin!): {}",
+                    abi::ABI_VERSION_SYMBOL,
+                    with_sources(&e)
                 )
             })?;
+        check_code(*f as usize, abi::ABI_VERSION_SYMBOL, &shown)?;
         f()
     };
     if version != abi::ABI_VERSION {
@@ -90,7 +143,14 @@ pub fn load_plugin(path: &Path, registry: &mut Registry) -> Result<Vec<String>, 
         let f = unsafe {
             library.get::<extern "C" fn() -> *const FgPlugin>(abi::PLUGIN_SYMBOL.as_bytes())
         }
-        .map_err(|_| format!("plugin {shown}: it has no `{}` symbol", abi::PLUGIN_SYMBOL))?;
+        .map_err(|e| {
+            format!(
+                "plugin {shown}: it has no `{}` symbol: {}",
+                abi::PLUGIN_SYMBOL,
+                with_sources(&e)
+            )
+        })?;
+        check_code(*f as usize, abi::PLUGIN_SYMBOL, &shown)?;
         f()
     };
     if table.is_null() {

@@ -624,3 +624,57 @@ fn a_result_read_from_a_file_edited_during_the_node_is_not_cached() {
     assert_eq!(statuses(&second)["f"], Ran);
     assert_eq!(scalar(&second, 0, "bytes"), 14.0);
 }
+
+/// Entries that are no longer files of their declared size (grown to 3 GB, a
+/// FIFO, a link to /dev/zero) are recomputed without being read: each run
+/// finishes in a bounded time (a FIFO opened for reading would block, a
+/// device never end) and memory (a 3 GB read).
+#[test]
+fn entries_of_the_wrong_kind_or_size_are_recomputed_without_reading_them() {
+    let t = tempfile::tempdir().unwrap();
+    let (reg, _) = registry();
+    let g = write_graph(t.path(), "g.toml", DIAMOND);
+    let cache = t.path().join("cache");
+    let out = t.path().join("out");
+    run_file(&reg, &g, &[], Some(&cache), &out).unwrap();
+    let graph = load_graph(&g, &[], &reg).unwrap();
+    let keys = node_keys(&graph, &out).unwrap();
+    let disk = DiskCache::open(&cache).unwrap();
+    let path = |id: &str| disk.entry_path(&keys[graph.index_of(id).unwrap()]);
+    // Grown (sparse, so the disk is not filled).
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open(path("a"))
+        .unwrap()
+        .set_len(3 << 30)
+        .unwrap();
+    // A FIFO, where mkfifo exists.
+    std::fs::remove_file(path("b")).unwrap();
+    let fifo = std::process::Command::new("mkfifo")
+        .arg(path("b"))
+        .status()
+        .is_ok_and(|s| s.success());
+    if !fifo {
+        eprintln!("mkfifo is not available: the FIFO case is skipped");
+    }
+    // A link to a device that never ends.
+    std::fs::remove_file(path("x")).unwrap();
+    std::os::unix::fs::symlink("/dev/zero", path("x")).unwrap();
+
+    let (done, wait) = std::sync::mpsc::channel();
+    let (reg2, g2, cache2, out2) = (reg, g.clone(), cache.clone(), out.clone());
+    std::thread::spawn(move || {
+        let o = run_file(&reg2, &g2, &[], Some(&cache2), &out2).unwrap();
+        let _ = done.send(with_status(&o, Ran));
+    });
+    let ran = wait
+        .recv_timeout(std::time::Duration::from_secs(60))
+        .expect("the run finished: no entry was read whole");
+    let mut expected = vec!["a", "x"];
+    if fifo {
+        expected.insert(1, "b");
+    }
+    // c depends on b and x, which ran again with the same result: c stays cached.
+    assert_eq!(ran, expected);
+    assert!(std::fs::metadata(path("a")).unwrap().len() < 4096);
+}

@@ -59,11 +59,52 @@ pub fn validate_variants(
             })),
         }
     }
+    errors.extend(unknown_metric_nodes(plan, &graphs));
     if errors.is_empty() {
         Ok(graphs)
     } else {
         Err(GraphErrors(errors))
     }
+}
+
+/// `rank_by` and `metrics` entries (`NODE.METRIC`) whose node is in no
+/// variant's graph: a typo that would leave a column empty and the ranking
+/// unmade.
+fn unknown_metric_nodes(plan: &SweepPlan, graphs: &[ValidGraph]) -> Vec<crate::GraphError> {
+    let known = |node: &str| graphs.iter().any(|g| g.index_of(node).is_some());
+    let ids: Vec<&str> = graphs
+        .first()
+        .map(|g| g.nodes.iter().map(|n| n.id.as_str()).collect())
+        .unwrap_or_default();
+    let mut errors = Vec::new();
+    if graphs.is_empty() {
+        return errors;
+    }
+    let named = plan
+        .rank_by
+        .iter()
+        .map(|m| ("rank_by", m))
+        .chain(plan.metrics.iter().map(|m| ("metrics", m)));
+    let mut seen = std::collections::BTreeSet::new();
+    for (key, metric) in named {
+        let node = metric.split_once('.').map_or(metric.as_str(), |(n, _)| n);
+        if known(node) || !seen.insert(metric.clone()) {
+            continue;
+        }
+        let hint = match crate::error::closest(node, ids.iter().copied()) {
+            Some(c) => format!(" (did you mean `{c}`?)"),
+            None => String::new(),
+        };
+        errors.push(
+            crate::GraphError::file(
+                crate::error::ErrorKind::UnknownSource,
+                &plan.file,
+                format!("{metric:?} names node `{node}`, which the graph does not have{hint}"),
+            )
+            .at_key(key),
+        );
+    }
+    errors
 }
 
 /// How to run a sweep.
@@ -97,6 +138,48 @@ pub struct VariantRun {
     pub error: Option<String>,
 }
 
+/// Refuses a sweep folder whose `sweep.json` holds another plan: shards of
+/// two sweeps in one folder would replace each other's plan, and a merge
+/// would drop one sweep's variants as missing. The same plan (another shard
+/// of this sweep, or a rerun) is fine.
+fn check_same_plan(
+    plan_file: &Path,
+    plan_json: &serde_json::Value,
+    plan: &SweepPlan,
+) -> std::io::Result<()> {
+    let existing = match std::fs::read_to_string(plan_file) {
+        Ok(text) => text,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => {
+            return Err(std::io::Error::new(
+                e.kind(),
+                format!("{}: {e}", plan_file.display()),
+            ));
+        }
+    };
+    let theirs: Option<serde_json::Value> = serde_json::from_str(&existing).ok();
+    if theirs.as_ref() == Some(plan_json) {
+        return Ok(());
+    }
+    let described = theirs
+        .as_ref()
+        .map(|t| {
+            format!(
+                "sweep `{}` from {}",
+                t["name"].as_str().unwrap_or("?"),
+                t["file"].as_str().unwrap_or("?")
+            )
+        })
+        .unwrap_or_else(|| "a plan that does not parse".into());
+    Err(std::io::Error::other(format!(
+        "{} holds {described}, not this plan (sweep `{}` from {}): shards of different sweeps, \
+         or a changed sweep file, cannot share a folder; use another --out",
+        plan_file.display(),
+        plan.name,
+        plan.file.display()
+    )))
+}
+
 /// The variants shard `shard` of `n` runs (all with `None`).
 pub fn shard_of(count: usize, shard: Option<(usize, usize)>) -> Vec<usize> {
     match shard {
@@ -115,10 +198,12 @@ pub fn run_sweep(
     mut each: impl FnMut(&VariantRun),
 ) -> std::io::Result<Vec<VariantRun>> {
     std::fs::create_dir_all(&options.out_dir)?;
+    let plan_file = options.out_dir.join("sweep.json");
+    let plan_json = compare::plan_json(plan);
+    check_same_plan(&plan_file, &plan_json, plan)?;
     crate::atomic::write_atomically(
-        &options.out_dir.join("sweep.json"),
-        (serde_json::to_string_pretty(&compare::plan_json(plan)).expect("plain data") + "\n")
-            .as_bytes(),
+        &plan_file,
+        (serde_json::to_string_pretty(&plan_json).expect("plain data") + "\n").as_bytes(),
     )?;
     let memory = MemoryCache::new();
     // Without a disk cache the variants still share files that nodes made (a

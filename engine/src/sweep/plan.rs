@@ -282,7 +282,17 @@ pub fn load_sweep(file: &Path) -> Result<SweepPlan, GraphErrors> {
             );
         }
         let shortest = lists.iter().map(Vec::len).min().unwrap_or(0);
-        (0..shortest).map(|i| vec![i; lists.len()]).collect()
+        if shortest > MAX_VARIANTS {
+            errors.push(
+                err(format!(
+                    "mode = \"zip\": {shortest} variants, more than {MAX_VARIANTS}"
+                ))
+                .at_key("vary"),
+            );
+            Vec::new()
+        } else {
+            (0..shortest).map(|i| vec![i; lists.len()]).collect()
+        }
     } else {
         let total = lists
             .iter()
@@ -325,6 +335,17 @@ pub fn load_sweep(file: &Path) -> Result<SweepPlan, GraphErrors> {
         .collect();
     match table.get("variant") {
         None => {}
+        Some(toml::Value::Table(named)) if combos.len() + named.len() > MAX_VARIANTS => {
+            errors.push(err(format!(
+                "{} named variants{}: more than {MAX_VARIANTS} in all",
+                named.len(),
+                if combos.is_empty() {
+                    String::new()
+                } else {
+                    format!(" and {} from [sweep.vary]", combos.len())
+                }
+            )));
+        }
         Some(toml::Value::Table(named)) => {
             for (name, body) in named {
                 // A variant's name is a folder under --out: no `.`, `..` or
@@ -472,5 +493,24 @@ mod tests {
             assert!(e.contains(&format!("[variant.{name}]")), "{name}: {e}");
         }
         assert!(plan("[sweep]\ngraph = \"g\"\n[variant.\"v1.2\"]\n\"a.b\" = 1\n").is_ok());
+    }
+
+    #[test]
+    fn zipped_and_named_variants_have_the_grids_cap() {
+        let many: Vec<String> = (0..=MAX_VARIANTS).map(|i| i.to_string()).collect();
+        let e = plan(&format!(
+            "[sweep]\ngraph = \"g\"\nmode = \"zip\"\n[sweep.vary]\n\"a.b\" = [{}]\n",
+            many.join(", ")
+        ))
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("10001 variants, more than 10000"), "{e}");
+        let named: String = (0..=MAX_VARIANTS)
+            .map(|i| format!("[variant.v{i}]\n\"a.b\" = {i}\n"))
+            .collect();
+        let e = plan(&format!("[sweep]\ngraph = \"g\"\n{named}"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("10001 named variants: more than 10000"), "{e}");
     }
 }

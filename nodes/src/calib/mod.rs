@@ -29,8 +29,8 @@ pub use rectify::{StereoRectification, rectify, remap};
 pub use stereo::{StereoCalibration, calibrate_stereo};
 pub use subpixel::{refine_corner, window_for_square};
 pub use views::{
-    IMAGE_EXTENSIONS, NumberedPhotos, Pairing, PhotoRecord, Side, numbered_photos, pair_views,
-    usual_size, view_number,
+    IMAGE_EXTENSIONS, NumberedPhotos, Pairing, PhotoRecord, SAME_POSE_PX, Side,
+    max_corner_shift_px, numbered_photos, pair_views, repeated_poses, usual_size, view_number,
 };
 pub use zhang::{intrinsics_from_homographies, pose_from_homography};
 

@@ -153,6 +153,65 @@ pub struct Pairing {
     pub dropped: Vec<String>,
 }
 
+/// Two photos whose corners all lie within this distance show one board pose:
+/// a photo copied, or taken twice without moving anything. Real retakes of a
+/// held board move by pixels; detection noise is hundredths of one.
+pub const SAME_POSE_PX: f64 = 0.5;
+
+/// The largest distance between corresponding corners of two views, px;
+/// `None` when they have different corner counts.
+pub fn max_corner_shift_px(a: &BoardView, b: &BoardView) -> Option<f64> {
+    (a.image_px.len() == b.image_px.len()).then(|| {
+        a.image_px
+            .iter()
+            .zip(&b.image_px)
+            .map(|(p, q)| (p - q).norm())
+            .fold(0.0, f64::max)
+    })
+}
+
+/// The poses that repeat an earlier one: `(index, index of the first,
+/// largest corner shift px)`, in order. A pose is one board view per camera
+/// (one for a camera, left and right for a pair); it repeats another when
+/// every camera's corners lie within [`SAME_POSE_PX`] of the other's.
+///
+/// # Examples
+///
+/// ```
+/// use fusegraph_nodes::calib::{BoardView, repeated_poses};
+/// use nalgebra::Point2;
+///
+/// let view = |dx: f64| BoardView {
+///     board_mm: vec![Point2::new(0.0, 0.0), Point2::new(25.0, 0.0)],
+///     image_px: vec![Point2::new(100.0 + dx, 50.0), Point2::new(180.0 + dx, 52.0)],
+/// };
+/// let (a, b, c) = (view(0.0), view(0.05), view(12.0));
+/// let poses = vec![vec![&a], vec![&b], vec![&c]];
+/// let repeats = repeated_poses(&poses);
+/// assert_eq!(repeats.len(), 1);
+/// assert_eq!((repeats[0].0, repeats[0].1), (1, 0));
+/// ```
+pub fn repeated_poses(poses: &[Vec<&BoardView>]) -> Vec<(usize, usize, f64)> {
+    let mut kept: Vec<usize> = Vec::new();
+    let mut repeats = Vec::new();
+    for (i, pose) in poses.iter().enumerate() {
+        let same = kept.iter().find_map(|&k| {
+            let shifts: Option<Vec<f64>> = pose
+                .iter()
+                .zip(&poses[k])
+                .map(|(a, b)| max_corner_shift_px(a, b))
+                .collect();
+            let worst = shifts?.into_iter().fold(0.0, f64::max);
+            (worst < SAME_POSE_PX).then_some((k, worst))
+        });
+        match same {
+            Some((k, shift)) => repeats.push((i, k, shift)),
+            None => kept.push(i),
+        }
+    }
+    repeats
+}
+
 /// The size most views have (ties: the lowest view's) and the views of other
 /// sizes, which a calibration leaves out: one camera takes one size, and a
 /// photo of another size is a cropped or resized copy.
@@ -241,6 +300,18 @@ pub fn pair_views(left: &Side, right: &Side, min_pairs: usize) -> Result<Pairing
             )),
         }
     }
+    // A pose photographed twice adds no constraint but weighs double, and
+    // makes the fit look better than the rig is.
+    let poses: Vec<Vec<&BoardView>> = pairing.pairs.iter().map(|(l, r)| vec![l, r]).collect();
+    let repeats = repeated_poses(&poses);
+    for (i, first, shift) in repeats.iter().rev() {
+        let (v, u) = (pairing.views[*i], pairing.views[*first]);
+        pairing.dropped.push(format!(
+            "view {v}: the same board pose as view {u} in both photos (corners within {shift:.2} px): a repeated photo"
+        ));
+        pairing.views.remove(*i);
+        pairing.pairs.remove(*i);
+    }
     if pairing.pairs.len() < min_pairs {
         return Err(format!(
             "{} usable pair{} of {} views, {min_pairs} needed (the find_chessboard nodes' notes say why each board was refused): {}",
@@ -302,9 +373,10 @@ mod tests {
     }
 
     fn side(found: &[u32], refused: &[u32], size: (usize, usize)) -> Side {
-        let view = BoardView {
+        // Each view's board somewhere else in the photo: a pose of its own.
+        let view = |v: u32| BoardView {
             board_mm: vec![Point2::new(0.0, 0.0)],
-            image_px: vec![Point2::new(1.0, 2.0)],
+            image_px: vec![Point2::new(1.0 + 10.0 * v as f64, 2.0)],
         };
         let mut photos: BTreeMap<u32, PhotoRecord> = BTreeMap::new();
         for &v in found {
@@ -326,7 +398,7 @@ mod tests {
             photos.insert(v, PhotoRecord { refusal, size });
         }
         Side {
-            boards: found.iter().map(|&v| (v, (view.clone(), size))).collect(),
+            boards: found.iter().map(|&v| (v, (view(v), size))).collect(),
             photos: Some(photos),
         }
     }
@@ -386,5 +458,31 @@ mod tests {
         assert_eq!(usual_size(&sizes), ((6, 6), vec![1]));
         let tie = BTreeMap::from([(1, (5, 5)), (2, (6, 6))]);
         assert_eq!(usual_size(&tie), ((5, 5), vec![2]));
+    }
+
+    #[test]
+    fn a_pair_repeating_another_pose_is_left_out_naming_both() {
+        let left = side(&[1, 2, 3, 4], &[], (640, 480));
+        let right = side(&[1, 2, 3, 4], &[], (640, 480));
+        // View 4 is a copy of view 2 on both sides.
+        let copy = |s: &Side| {
+            let mut s = s.clone();
+            let two = s.boards[&2].clone();
+            s.boards.insert(4, two);
+            s
+        };
+        let (left, right) = (copy(&left), copy(&right));
+        let p = pair_views(&left, &right, 3).unwrap();
+        assert_eq!(p.views, [1, 2, 3]);
+        assert_eq!(
+            p.dropped,
+            [
+                "view 4: the same board pose as view 2 in both photos (corners within 0.00 px): a repeated photo"
+            ]
+        );
+        // A copy on one side only is a different pair: kept.
+        let right_only = copy(&side(&[1, 2, 3, 4], &[], (640, 480)));
+        let p = pair_views(&side(&[1, 2, 3, 4], &[], (640, 480)), &right_only, 3).unwrap();
+        assert_eq!(p.views, [1, 2, 3, 4]);
     }
 }

@@ -2,14 +2,14 @@
 
 use super::SolverParams;
 use crate::calib::tables::boards_from_table;
-use crate::calib::{BoardView, calibrate_camera, usual_size};
+use crate::calib::{BoardView, calibrate_camera, repeated_poses, usual_size};
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Camera, Table};
 
 /// Zhang calibration refined by Levenberg-Marquardt -> Camera
 #[derive(Op)]
 // 3: analytic Jacobians, stopped on the exact minimum.
-#[op(name = "calib.calibrate_camera", version = 3)]
+#[op(name = "calib.calibrate_camera", version = 4)]
 pub struct CalibrateCamera {
     #[param(flatten)]
     pub solver: SolverParams,
@@ -42,8 +42,27 @@ impl RunOp for CalibrateCamera {
             ));
             boards.remove(&v);
         }
-        let ids: Vec<u32> = boards.keys().copied().collect();
-        let views: Vec<BoardView> = boards.into_values().map(|b| b.0).collect();
+        let mut ids: Vec<u32> = boards.keys().copied().collect();
+        let mut views: Vec<BoardView> = boards.into_values().map(|b| b.0).collect();
+        let poses: Vec<Vec<&BoardView>> = views.iter().map(|v| vec![v]).collect();
+        let repeats = repeated_poses(&poses);
+        for (i, first, shift) in &repeats {
+            ctx.note(format!(
+                "view {}: the same board pose as view {} (corners within {shift:.2} px): a repeated photo, left out",
+                ids[*i], ids[*first]
+            ));
+        }
+        for (i, _, _) in repeats.iter().rev() {
+            ids.remove(*i);
+            views.remove(*i);
+        }
+        if views.len() < 3 && !repeats.is_empty() {
+            return Err(OpError::invalid(format!(
+                "{} distinct board poses ({} photos repeated others); calibration needs at least 3",
+                views.len(),
+                repeats.len()
+            )));
+        }
         let c = calibrate_camera(&views, w, h, self.solver.distortion_mask()?)
             .map_err(OpError::invalid)?;
         ctx.metric("rms_px", c.rms_px);

@@ -10,7 +10,7 @@ use fusegraph_engine::value::{StereoRig, Table};
 /// Both cameras and the rig extrinsics, refined jointly -> StereoRig
 #[derive(Op)]
 // 3: analytic Jacobians, stopped on the exact minimum.
-#[op(name = "calib.stereo_calibrate", version = 3)]
+#[op(name = "calib.stereo_calibrate", version = 4)]
 pub struct StereoCalibrate {
     #[param(flatten)]
     pub solver: SolverParams,

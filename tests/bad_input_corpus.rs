@@ -312,6 +312,52 @@ fn every_bad_input_of_the_corpus_gets_a_clear_error_in_bounded_memory_and_time()
         ],
     });
 
+    // Round 2 of the probe: a sink writing outside --out, a small file that
+    // would expand to a million nodes, targets Slicer never placed, and a
+    // truncated JPEG.
+    cases.push(graph_case(
+        root,
+        "a sink file outside the output folder",
+        "[node.a]\nop = \"math.constant\"\nvalue = 1.0\n[node.w]\nop = \"io.write_json\"\nin.value = \"a.value\"\nfile = \"../../x.json\"\n",
+        2,
+        &["`w`", "file", "inside the output folder"],
+    ));
+    let values: Vec<String> = (0..10_000).map(|i| i.to_string()).collect();
+    let nodes: String = (0..100)
+        .map(|i| format!("[each.v.node.n{i}]\nop = \"math.constant\"\nvalue = 1.0\n"))
+        .collect();
+    cases.push(graph_case(
+        root,
+        "an [each] group of a million nodes",
+        &format!("[each.v]\nvalues = [{}]\n{nodes}", values.join(", ")),
+        2,
+        &["[each.v]", "1000000 nodes"],
+    ));
+    std::fs::write(
+        root.join("unplaced.mrk.json"),
+        r#"{"markups":[{"coordinateSystem":"LPS","controlPoints":[{"id":"1","label":"T-1","position":[0,0,0],"positionStatus":"undefined"}]}]}"#,
+    )
+    .unwrap();
+    cases.push(graph_case(
+        root,
+        "targets Slicer never placed",
+        "[node.t]\nop = \"io.read_markers\"\npath = \"unplaced.mrk.json\"\n",
+        1,
+        &["unplaced.mrk.json", "no placed control points"],
+    ));
+    let jpeg = std::fs::read(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/chessboard/calibration03.jpg"),
+    )
+    .unwrap();
+    std::fs::write(root.join("cut.jpg"), &jpeg[..jpeg.len() / 2]).unwrap();
+    cases.push(graph_case(
+        root,
+        "a truncated JPEG",
+        "[node.i]\nop = \"io.read_image\"\npath = \"cut.jpg\"\n",
+        1,
+        &["cut.jpg", "does not decode cleanly"],
+    ));
+
     let mut failures = Vec::new();
     for case in &cases {
         let args: Vec<&str> = case.args.iter().map(String::as_str).collect();

@@ -261,6 +261,29 @@ fn a_pattern_of_three_numbers_fails_validation() {
             && e.contains("a list of 3 items, expected 2"),
         "{e}"
     );
+    // Every problem one pass can find, in one report: a pattern no board
+    // can have on one node, a mistyped key on another.
+    let o = fusegraph(
+        &[
+            "validate",
+            "stereo.toml",
+            "--set",
+            "left_corners.pattern=[2, 2]",
+            "--set",
+            "right_corners.patern=[9, 6]",
+        ],
+        t.path(),
+    );
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(
+        e.contains("pattern 2 x 2: use one odd and one even count"),
+        "{e}"
+    );
+    assert!(
+        e.contains("node `right_corners`") && e.contains("patern"),
+        "{e}"
+    );
 }
 
 #[test]

@@ -509,6 +509,14 @@ pub trait Op: Send + Sync {
     fn spec(&self) -> &OpSpec;
     /// Computes the outputs.
     fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError>;
+    /// Checks what the declaration cannot say about parameters that each
+    /// pass it (a pattern no board can have), at validation, before anything
+    /// runs; `params` hold every declared parameter. Every problem found is
+    /// returned.
+    fn check(&self, params: &Params) -> Vec<crate::param::ParamError> {
+        let _ = params;
+        Vec::new()
+    }
 }
 
 /// A `Path` value for `path`, hashed by content (for ops that write files;

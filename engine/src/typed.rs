@@ -80,6 +80,11 @@ pub trait RunOp: OpInfo + ParamSet + Send + Sync + 'static {
     type Outputs: OutputSet<Outputs>;
     /// Computes the outputs (see [`Op`] for what `run` may and must not do).
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError>;
+    /// Problems with the parameters the declaration cannot express, found at
+    /// validation (see [`Op::check`]): `(parameter, problem)` pairs.
+    fn check(&self) -> Vec<(&'static str, String)> {
+        Vec::new()
+    }
 }
 
 /// A typed op as the engine's [`Op`].
@@ -116,6 +121,23 @@ impl<T: RunOp> Op for Typed<T> {
         let mut outputs = Outputs::new();
         op.run(inputs, ctx)?.put_all(&mut outputs);
         Ok(outputs)
+    }
+
+    fn check(&self, params: &Params) -> Vec<ParamError> {
+        match T::from_params(params) {
+            Ok(op) => op
+                .check()
+                .into_iter()
+                .map(|(name, problem)| ParamError {
+                    name: name.to_string(),
+                    problem,
+                })
+                .collect(),
+            Err(p) => vec![ParamError {
+                name: p.name,
+                problem: p.problem,
+            }],
+        }
     }
 }
 

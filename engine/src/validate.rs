@@ -163,6 +163,13 @@ pub fn validate(doc: &GraphDoc, registry: &Registry) -> Result<ValidGraph, Graph
                 ),
             }
         }
+        // The op's own checks, once every parameter parsed: all problems a
+        // single pass can find are reported before anything runs.
+        if params.0.len() == spec.params.len() {
+            for problem in op.check(&params) {
+                errors.push(err(ErrorKind::BadParam, problem.problem).at_key(&problem.name));
+            }
+        }
         for p in spec.params.iter().filter(|p| p.kind == ParamKind::Path) {
             if let Some(ParamValue::Path(path)) = params.0.get(&p.name)
                 && !path.as_os_str().is_empty()

@@ -2,7 +2,7 @@
 //! (or one image).
 
 use crate::calib::tables::{corners_table, views_table};
-use crate::calib::{PhotoRecord, find_chessboard, numbered_photos};
+use crate::calib::{PhotoRecord, Refusal, find_chessboard, numbered_photos};
 use crate::io::{ImageSizeLimit, grey_of, load_grey_within};
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Image, PathValue, Table};
@@ -55,6 +55,15 @@ type Detection = Result<(Vec<Point2<f64>>, usize, usize), (String, (usize, usize
 impl RunOp for FindChessboard {
     type Inputs = FindChessboardInputs;
     type Outputs = FindChessboardOutputs;
+
+    fn check(&self) -> Vec<(&'static str, String)> {
+        let [cols, rows] = self.pattern;
+        if cols % 2 == rows % 2 {
+            let why = Refusal::AmbiguousPattern { cols, rows };
+            return vec![("pattern", why.to_string())];
+        }
+        Vec::new()
+    }
 
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
         let [cols, rows] = self.pattern;

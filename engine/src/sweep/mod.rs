@@ -71,15 +71,12 @@ pub fn validate_variants(
 /// variant's graph: a typo that would leave a column empty and the ranking
 /// unmade.
 fn unknown_metric_nodes(plan: &SweepPlan, graphs: &[ValidGraph]) -> Vec<crate::GraphError> {
-    let known = |node: &str| graphs.iter().any(|g| g.index_of(node).is_some());
-    let ids: Vec<&str> = graphs
-        .first()
-        .map(|g| g.nodes.iter().map(|n| n.id.as_str()).collect())
-        .unwrap_or_default();
     let mut errors = Vec::new();
-    if graphs.is_empty() {
-        return errors;
-    }
+    let Some(first) = graphs.first() else {
+        return errors; // every variant failed validation: already reported
+    };
+    let known = |node: &str| graphs.iter().any(|g| g.index_of(node).is_some());
+    let ids = first.nodes.iter().map(|n| n.id.as_str());
     let named = plan
         .rank_by
         .iter()
@@ -91,7 +88,7 @@ fn unknown_metric_nodes(plan: &SweepPlan, graphs: &[ValidGraph]) -> Vec<crate::G
         if known(node) || !seen.insert(metric.clone()) {
             continue;
         }
-        let hint = match crate::error::closest(node, ids.iter().copied()) {
+        let hint = match crate::error::closest(node, ids.clone()) {
             Some(c) => format!(" (did you mean `{c}`?)"),
             None => String::new(),
         };

@@ -320,8 +320,7 @@ fn drop_exact_copies(files: Vec<PathBuf>, root: &Path, notes: &mut Vec<String>) 
         .zip(&sizes)
         .map(|(f, s)| {
             s.filter(|s| by_size[s] > 1)
-                .and_then(|_| std::fs::read(f).ok())
-                .map(|bytes| blake3::hash(&bytes))
+                .and_then(|_| fusegraph_engine::hash::hash_path(f).ok())
         })
         .collect();
     let mut first_of: BTreeMap<[u8; 32], usize> = BTreeMap::new();

@@ -225,19 +225,21 @@ pub fn read_markups(reader: impl Read) -> Result<ReadPoints, String> {
             ));
         }
         for (i, p) in list.control_points.into_iter().enumerate() {
-            let name = p
-                .label
-                .clone()
-                .or_else(|| p.id.clone())
-                .unwrap_or_else(|| format!("control point {i}"));
+            let name = || {
+                p.label
+                    .clone()
+                    .or_else(|| p.id.clone())
+                    .unwrap_or_else(|| format!("control point {i}"))
+            };
             if let Some(status @ ("undefined" | "preview")) = p.position_status.as_deref() {
-                unplaced.push(format!("{name} ({status})"));
+                unplaced.push(format!("{} ({status})", name()));
                 continue;
             }
             let pos = p
                 .position
+                .as_ref()
                 .filter(|a| a.len() == 3 && a.iter().all(|v| v.is_finite()))
-                .ok_or_else(|| format!("{name}: `position` must be 3 numbers"))?;
+                .ok_or_else(|| format!("{}: `position` must be 3 numbers", name()))?;
             let mm = [0, 1, 2].map(|a| pos[a] * scale[a]);
             let [x, y, z] = mm;
             points.push(if ras { [-x, -y, z] } else { [x, y, z] });

@@ -312,6 +312,27 @@ fn every_bad_input_of_the_corpus_gets_a_clear_error_in_bounded_memory_and_time()
         ],
     });
 
+    // Sources and settings an op refuses, found at validation rather than
+    // when the node runs, all in one report.
+    cases.push(graph_case(
+        root,
+        "a reader's file without its folder, a chessboard with two sources, SGM settings",
+        "[node.img]\nop = \"io.read_image\"\nfile = \"left_00.png\"\n\
+         [node.corners]\nop = \"calib.find_chessboard\"\ndir = \"ph\"\nin.image = \"img.image\"\n\
+         [node.depth]\nop = \"design.depth_of_field\"\nnear_mm = 500.0\nfar_mm = 400.0\n\
+         [node.match]\nop = \"stereo.sgm\"\nin.left = \"img.image\"\nin.right = \"img.image\"\n\
+         paths = 6\np1 = 90\n",
+        2,
+        &[
+            "node `img`, key `file`",
+            "not connected",
+            "node `corners`, key `in.image`: `dir` and `in.image` are both given",
+            "node `depth`, key `far_mm`: need near 500 < far 400",
+            "node `match`, key `paths`: paths = 6",
+            "node `match`, key `p2`: SGM penalties P1 = 90 and P2 = 80",
+        ],
+    ));
+
     // Round 2 of the probe: a sink writing outside --out, a small file that
     // would expand to a million nodes, targets Slicer never placed, and a
     // truncated JPEG.

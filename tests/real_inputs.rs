@@ -262,7 +262,8 @@ fn a_pattern_of_three_numbers_fails_validation() {
         "{e}"
     );
     // Every problem one pass can find, in one report: a pattern no board
-    // can have on one node, a mistyped key on another.
+    // can have on one node, a mistyped key on another, an override naming
+    // no node and a coefficient no camera model has.
     let o = fusegraph(
         &[
             "validate",
@@ -271,15 +272,22 @@ fn a_pattern_of_three_numbers_fails_validation() {
             "left_corners.pattern=[2, 2]",
             "--set",
             "right_corners.patern=[9, 6]",
+            "--set",
+            "no_such_node.x=1",
+            "--set",
+            "stereo.free=[\"k1\", \"k9\"]",
         ],
         t.path(),
     );
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     let e = stderr(&o);
-    assert!(
-        e.contains("pattern 2 x 2: use one odd and one even count"),
-        "{e}"
-    );
+    for says in [
+        "pattern 2 x 2: use one odd and one even count",
+        "node `no_such_node`, key `x`: --set: no node with this id",
+        "node `stereo`, key `free`: unknown coefficient \"k9\"",
+    ] {
+        assert!(e.contains(says), "missing {says:?} in:\n{e}");
+    }
     assert!(
         e.contains("node `right_corners`") && e.contains("patern"),
         "{e}"

@@ -33,7 +33,7 @@ pub mod value;
 pub mod workdir;
 
 pub use error::{ErrorKind, GraphError, GraphErrors};
-pub use op::{Inputs, Op, OpError, OpSpec, Outputs, PortSpec, RunCtx, path_value};
+pub use op::{Inputs, Op, OpError, OpSpec, Outputs, PortSpec, RunCtx, Wired, path_value};
 pub use param::{ParamKind, ParamSpec, ParamValue, Params};
 pub use registry::Registry;
 pub use report::{NodeStatus, RunReport};

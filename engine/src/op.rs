@@ -510,12 +510,58 @@ pub trait Op: Send + Sync {
     /// Computes the outputs.
     fn run(&self, inputs: &Inputs, params: &Params, ctx: &mut RunCtx) -> Result<Outputs, OpError>;
     /// Checks what the declaration cannot say about parameters that each
-    /// pass it (a pattern no board can have), at validation, before anything
-    /// runs; `params` hold every declared parameter. Every problem found is
-    /// returned.
-    fn check(&self, params: &Params) -> Vec<crate::param::ParamError> {
-        let _ = params;
+    /// pass it (a pattern no board can have, a source given twice or not at
+    /// all), at validation, before anything runs; `params` hold every
+    /// declared parameter and `wired` names the input ports the graph
+    /// connects. Every problem found is returned, keyed by the parameter or
+    /// by `in.<port>`.
+    fn check(&self, params: &Params, wired: Wired) -> Vec<crate::param::ParamError> {
+        let _ = (params, wired);
         Vec::new()
+    }
+}
+
+/// The input ports a node's graph entry connects, as [`Op::check`] sees them.
+#[derive(Debug, Clone, Copy)]
+pub struct Wired<'a> {
+    ports: &'a [&'a str],
+}
+
+impl<'a> Wired<'a> {
+    /// The connected ports, by name.
+    pub fn new(ports: &'a [&'a str]) -> Self {
+        Wired { ports }
+    }
+
+    /// Whether the graph connects input `port`.
+    pub fn has(&self, port: &str) -> bool {
+        self.ports.contains(&port)
+    }
+}
+
+/// The problem, if any, when not exactly one of a node's alternative sources
+/// is given: `sources` pairs each graph key (`dir`, `in.dir`) with whether it
+/// is given. The problem is keyed by the second source given, or by the
+/// first source when none is.
+pub fn exactly_one_source(sources: &[(&'static str, bool)]) -> Option<(&'static str, String)> {
+    let names = || {
+        sources
+            .iter()
+            .map(|(k, _)| format!("`{k}`"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let given: Vec<&str> = sources.iter().filter(|s| s.1).map(|s| s.0).collect();
+    match given.as_slice() {
+        [_] => None,
+        [] => Some((sources[0].0, format!("give one of {}", names()))),
+        [first, second, ..] => Some((
+            second,
+            format!(
+                "`{first}` and `{second}` are both given: give one of {}",
+                names()
+            ),
+        )),
     }
 }
 
@@ -528,4 +574,35 @@ pub fn path_value(path: &std::path::Path) -> Result<PathValue, OpError> {
         path: abs,
         content_hash: hash.to_hex().to_string(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn exactly_one_source_names_what_is_missing_or_doubled() {
+        assert_eq!(
+            exactly_one_source(&[("path", true), ("in.dir", false)]),
+            None
+        );
+        assert_eq!(
+            exactly_one_source(&[("path", false), ("in.dir", true)]),
+            None
+        );
+        let (key, none) = exactly_one_source(&[("path", false), ("in.dir", false)]).unwrap();
+        assert_eq!(
+            (key, none.as_str()),
+            ("path", "give one of `path`, `in.dir`")
+        );
+        let (key, both) =
+            exactly_one_source(&[("dir", true), ("in.dir", false), ("in.image", true)]).unwrap();
+        assert_eq!(key, "in.image");
+        assert_eq!(
+            both,
+            "`dir` and `in.image` are both given: give one of `dir`, `in.dir`, `in.image`"
+        );
+        let wired = Wired::new(&["left", "dir"]);
+        assert!(wired.has("dir") && !wired.has("image"));
+    }
 }

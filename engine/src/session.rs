@@ -34,14 +34,20 @@ pub fn load_graph(
 ) -> Result<ValidGraph, GraphErrors> {
     let mut doc = GraphDoc::load(file)?;
     let registry = with_graph_plugins(&doc, registry)?;
-    let errors: Vec<_> = overrides
+    let mut errors: Vec<_> = overrides
         .iter()
         .filter_map(|s| doc.apply_set(s).err())
         .collect();
-    if !errors.is_empty() {
-        return Err(GraphErrors(errors));
+    // The graph with the overrides that did apply is still validated, so one
+    // pass reports every problem, not the overrides' first.
+    match validate(&doc, &registry) {
+        Ok(graph) if errors.is_empty() => Ok(graph),
+        Ok(_) => Err(GraphErrors(errors)),
+        Err(GraphErrors(more)) => {
+            errors.extend(more);
+            Err(GraphErrors(errors))
+        }
     }
-    validate(&doc, &registry)
 }
 
 /// `registry` with the plugins `doc`'s `[graph] plugins` names loaded (the

@@ -50,7 +50,7 @@
 //! assert_eq!(spec.params[0].min, Some(0.0));
 //! ```
 
-use crate::op::{Inputs, Op, OpError, OpSpec, Outputs, PortSpec, RunCtx};
+use crate::op::{Inputs, Op, OpError, OpSpec, Outputs, PortSpec, RunCtx, Wired};
 use crate::param::{ListLength, ParamError, ParamKind, ParamSpec, ParamValue, Params};
 use crate::value::{self, FromValue, Value, ValueType};
 use fusegraph_plugin_api::typed::{
@@ -66,7 +66,7 @@ pub use fusegraph_plugin_api::typed as declaration;
 /// types `run` uses.
 pub mod prelude {
     pub use super::RunOp;
-    pub use crate::op::{OpError, RunCtx};
+    pub use crate::op::{OpError, RunCtx, Wired, exactly_one_source};
     pub use fusegraph_plugin_api::derive::{Choice, Inputs, Op, Outputs, Params};
     pub use std::sync::Arc;
 }
@@ -80,9 +80,11 @@ pub trait RunOp: OpInfo + ParamSet + Send + Sync + 'static {
     type Outputs: OutputSet<Outputs>;
     /// Computes the outputs (see [`Op`] for what `run` may and must not do).
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError>;
-    /// Problems with the parameters the declaration cannot express, found at
-    /// validation (see [`Op::check`]): `(parameter, problem)` pairs.
-    fn check(&self) -> Vec<(&'static str, String)> {
+    /// Problems with the parameters and the wiring the declaration cannot
+    /// express, found at validation (see [`Op::check`]): `(key, problem)`
+    /// pairs, the key a parameter or `in.<port>`.
+    fn check(&self, wired: Wired) -> Vec<(&'static str, String)> {
+        let _ = wired;
         Vec::new()
     }
 }
@@ -123,10 +125,10 @@ impl<T: RunOp> Op for Typed<T> {
         Ok(outputs)
     }
 
-    fn check(&self, params: &Params) -> Vec<ParamError> {
+    fn check(&self, params: &Params, wired: Wired) -> Vec<ParamError> {
         match T::from_params(params) {
             Ok(op) => op
-                .check()
+                .check(wired)
                 .into_iter()
                 .map(|(name, problem)| ParamError {
                     name: name.to_string(),

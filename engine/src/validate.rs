@@ -4,7 +4,7 @@
 
 use crate::error::{ErrorKind, GraphError, GraphErrors, closest};
 use crate::graph::GraphDoc;
-use crate::op::Op;
+use crate::op::{Op, Wired};
 use crate::param::{ParamKind, ParamValue, Params};
 use crate::registry::Registry;
 use petgraph::graph::{DiGraph, NodeIndex};
@@ -166,7 +166,8 @@ pub fn validate(doc: &GraphDoc, registry: &Registry) -> Result<ValidGraph, Graph
         // The op's own checks, once every parameter parsed: all problems a
         // single pass can find are reported before anything runs.
         if params.0.len() == spec.params.len() {
-            for problem in op.check(&params) {
+            let wired: Vec<&str> = decl.inputs.iter().map(|i| i.port.as_str()).collect();
+            for problem in op.check(&params, Wired::new(&wired)) {
                 errors.push(err(ErrorKind::BadParam, problem.problem).at_key(&problem.name));
             }
         }

@@ -1,8 +1,9 @@
 //! Which file a reader op reads: a `dir` input with a `file` name, or a
 //! `path` (shared by `io.read_image`, `io.read_markers`, `io.read_disparity`).
 
-use fusegraph_engine::OpError;
+use fusegraph_engine::op::exactly_one_source;
 use fusegraph_engine::value::PathValue;
+use fusegraph_engine::{OpError, Wired};
 use fusegraph_plugin_api::derive::{Inputs, Params};
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -36,6 +37,36 @@ impl SourceFile {
                 "give the `path` parameter, or the `dir` input and the `file` parameter",
             )),
         }
+    }
+}
+
+impl SourceFile {
+    /// What [`SourceFile::resolve`] would refuse, found at validation from the
+    /// parameters and whether the `dir` input is connected.
+    pub fn check(&self, wired: Wired) -> Vec<(&'static str, String)> {
+        let dir = wired.has("dir");
+        if !dir && self.path.is_none() && !self.file.is_empty() {
+            let problem = "`file` names a file inside the `dir` input, which is not connected: \
+                           connect `in.dir`, or give `path` (relative to the graph)";
+            return vec![("file", problem.into())];
+        }
+        let mut problems: Vec<_> =
+            exactly_one_source(&[("path", self.path.is_some()), ("in.dir", dir)])
+                .into_iter()
+                .collect();
+        if dir && self.file.is_empty() {
+            problems.push((
+                "file",
+                "the file's name inside the `dir` input is missing".into(),
+            ));
+        }
+        if self.path.is_some() && !self.file.is_empty() {
+            problems.push((
+                "file",
+                "`file` names a file inside the `dir` input; with `path`, leave it out".into(),
+            ));
+        }
+        problems
     }
 }
 

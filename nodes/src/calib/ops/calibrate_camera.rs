@@ -31,6 +31,10 @@ impl RunOp for CalibrateCamera {
     type Inputs = CalibrateCameraInputs;
     type Outputs = CalibrateCameraOutputs;
 
+    fn check(&self, _: Wired) -> Vec<(&'static str, String)> {
+        self.solver.check()
+    }
+
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
         let mut boards = boards_from_table(&inputs.corners)?;
         let sizes = boards.iter().map(|(v, b)| (*v, b.1)).collect();

@@ -56,13 +56,22 @@ impl RunOp for FindChessboard {
     type Inputs = FindChessboardInputs;
     type Outputs = FindChessboardOutputs;
 
-    fn check(&self) -> Vec<(&'static str, String)> {
+    fn check(&self, wired: Wired) -> Vec<(&'static str, String)> {
+        let mut problems = Vec::new();
         let [cols, rows] = self.pattern;
         if cols % 2 == rows % 2 {
             let why = Refusal::AmbiguousPattern { cols, rows };
-            return vec![("pattern", why.to_string())];
+            problems.push(("pattern", why.to_string()));
         }
-        Vec::new()
+        problems.extend(exactly_one_source(&[
+            ("dir", self.dir.is_some()),
+            ("in.dir", wired.has("dir")),
+            ("in.image", wired.has("image")),
+        ]));
+        if let Err(e) = glob::Pattern::new(&self.glob) {
+            problems.push(("glob", e.to_string()));
+        }
+        problems
     }
 
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {

@@ -29,15 +29,29 @@ pub struct SolverParams {
 }
 
 impl SolverParams {
+    /// The names in `free` that are no distortion coefficient, at validation.
+    pub fn check(&self) -> Vec<(&'static str, String)> {
+        self.unknown_coefficient()
+            .map(|m| ("free", m))
+            .into_iter()
+            .collect()
+    }
+
+    fn unknown_coefficient(&self) -> Option<String> {
+        let f = self
+            .free
+            .iter()
+            .find(|f| !DISTORTION_NAMES.contains(&f.as_str()))?;
+        Some(format!(
+            "unknown coefficient {f:?}; use {}",
+            DISTORTION_NAMES.join(", ")
+        ))
+    }
+
     /// Which of k1, k2, p1, p2, k3 are estimated; an unknown name is an error.
     pub fn distortion_mask(&self) -> Result<[bool; 5], OpError> {
-        for f in &self.free {
-            if !DISTORTION_NAMES.contains(&f.as_str()) {
-                return Err(OpError::invalid(format!(
-                    "free: unknown coefficient {f:?}; use {}",
-                    DISTORTION_NAMES.join(", ")
-                )));
-            }
+        if let Some(m) = self.unknown_coefficient() {
+            return Err(OpError::invalid(format!("free: {m}")));
         }
         Ok(std::array::from_fn(|i| {
             self.free.iter().any(|f| f == DISTORTION_NAMES[i])

@@ -46,6 +46,10 @@ impl RunOp for StereoCalibrate {
     type Inputs = StereoCalibrateInputs;
     type Outputs = StereoCalibrateOutputs;
 
+    fn check(&self, _: Wired) -> Vec<(&'static str, String)> {
+        self.solver.check()
+    }
+
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
         let left = side(&inputs.left, inputs.left_views.as_deref())?;
         let right = side(&inputs.right, inputs.right_views.as_deref())?;

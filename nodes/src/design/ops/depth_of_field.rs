@@ -51,6 +51,31 @@ impl RunOp for DepthOfField {
     type Inputs = DepthOfFieldInputs;
     type Outputs = DepthOfFieldOutputs;
 
+    fn check(&self, wired: Wired) -> Vec<(&'static str, String)> {
+        let (near, far) = (self.near_mm, self.far_mm);
+        let mut problems = Vec::new();
+        if near >= far {
+            problems.push(("far_mm", format!("need near {near} < far {far} (mm)")));
+        }
+        // With the lens from another node, its focal length is known at run time.
+        if !wired.has("lens_mm") {
+            let f = self.focal_mm;
+            if near <= f {
+                problems.push(("near_mm", format!("need focal {f} < near {near} (mm)")));
+            }
+            if self.focus_mm > 0.0 && self.focus_mm <= f {
+                problems.push((
+                    "focus_mm",
+                    format!(
+                        "focus {} mm must be beyond the focal length {f} mm",
+                        self.focus_mm
+                    ),
+                ));
+            }
+        }
+        problems
+    }
+
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
         let f = inputs.lens_mm.unwrap_or(self.focal_mm);
         let (near, far) = (self.near_mm, self.far_mm);

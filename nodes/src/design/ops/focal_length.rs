@@ -38,6 +38,13 @@ impl RunOp for FocalLength {
     type Inputs = FocalLengthInputs;
     type Outputs = FocalLengthOutputs;
 
+    fn check(&self, _: Wired) -> Vec<(&'static str, String)> {
+        if self.lenses_mm.is_empty() {
+            return vec![("lenses_mm", "give at least one lens".into())];
+        }
+        Vec::new()
+    }
+
     fn run(&self, _: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
         let (s, d, fov) = (self.sensor_mm, self.min_distance_mm, self.fov_mm);
         let f = focal_length_mm(s, d, fov);

@@ -36,6 +36,12 @@ impl RunOp for LoadSeries {
     type Inputs = LoadSeriesInputs;
     type Outputs = LoadSeriesOutputs;
 
+    fn check(&self, wired: Wired) -> Vec<(&'static str, String)> {
+        exactly_one_source(&[("path", self.path.is_some()), ("in.dir", wired.has("dir"))])
+            .into_iter()
+            .collect()
+    }
+
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
         let path = match (&self.path, inputs.dir) {
             (Some(p), None) => p.clone(),

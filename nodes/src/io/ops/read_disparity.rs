@@ -30,6 +30,10 @@ impl RunOp for ReadDisparity {
     type Inputs = SourceDir;
     type Outputs = ReadDisparityOutputs;
 
+    fn check(&self, wired: Wired) -> Vec<(&'static str, String)> {
+        self.source.check(wired)
+    }
+
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
         let path = self.source.resolve(inputs.dir.as_deref())?;
         let d =

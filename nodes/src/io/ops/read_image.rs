@@ -26,6 +26,10 @@ impl RunOp for ReadImage {
     type Inputs = SourceDir;
     type Outputs = ReadImageOutputs;
 
+    fn check(&self, wired: Wired) -> Vec<(&'static str, String)> {
+        self.source.check(wired)
+    }
+
     fn run(&self, inputs: Self::Inputs, _: &mut RunCtx) -> Result<Self::Outputs, OpError> {
         let path = self.source.resolve(inputs.dir.as_deref())?;
         Ok(ReadImageOutputs {

@@ -27,6 +27,10 @@ impl RunOp for ReadMarkers {
     type Inputs = SourceDir;
     type Outputs = ReadMarkersOutputs;
 
+    fn check(&self, wired: Wired) -> Vec<(&'static str, String)> {
+        self.source.check(wired)
+    }
+
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
         let path = self.source.resolve(inputs.dir.as_deref())?;
         let parsed = if path.to_string_lossy().ends_with(".json") {

@@ -22,14 +22,14 @@ mod texture;
 mod volume;
 
 pub use block_match::{BlockCost, block_match};
-pub use cost::{CensusCosts, bt_costs, census_costs, census_transform};
+pub use cost::{CensusCosts, bt_costs, census_costs, census_transform, check_census_window};
 pub(crate) use figure::disparity_figure_png;
 pub use filter::filter_speckles;
 pub use pair::{DisparityRange, GreyImage, check_pair};
 pub use refine::{MAX_SIDE, RefineParams, refine_disparity};
 pub use select::{SelectParams, select};
-pub use sgm::{Aggregated, Paths, SgmParams, aggregate};
-pub use sgm_disparity::{MatchCost, SgmConfig, sgm_disparity, speckle_size_px};
+pub use sgm::{Aggregated, Paths, SgmParams, aggregate, check_penalties};
+pub use sgm_disparity::{MatchCost, SgmConfig, check_bt_window, sgm_disparity, speckle_size_px};
 pub use simd::Isa;
 pub use texture::{flat_windows, noise_sigma};
 pub use volume::{CostRows, CostVolume};

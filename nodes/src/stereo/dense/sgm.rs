@@ -79,14 +79,18 @@ pub struct SgmParams {
 impl SgmParams {
     /// Checks the penalties: 0 < p1 < p2 <= 4000 (so 16-bit sums cannot overflow).
     pub fn check(&self) -> Result<(), String> {
-        if self.p1 == 0 || self.p1 >= self.p2 || self.p2 > 4000 {
-            return Err(format!(
-                "SGM penalties P1 = {} and P2 = {}: need 0 < P1 < P2 <= 4000",
-                self.p1, self.p2
-            ));
-        }
-        Ok(())
+        check_penalties(self.p1, self.p2)
     }
+}
+
+/// Checks SGM penalties `p1`, `p2` (cost units): 0 < p1 < p2 <= 4000.
+pub fn check_penalties(p1: u16, p2: u16) -> Result<(), String> {
+    if p1 == 0 || p1 >= p2 || p2 > 4000 {
+        return Err(format!(
+            "SGM penalties P1 = {p1} and P2 = {p2}: need 0 < P1 < P2 <= 4000"
+        ));
+    }
+    Ok(())
 }
 
 /// Aggregated costs `[y][x][k]` as the two passes' sums (their sum is the total).

@@ -121,6 +121,16 @@ fn memory_bytes(config: &SgmConfig, cells: usize) -> usize {
     cells * (costs + sums)
 }
 
+/// The Birchfield-Tomasi cost's averaging window, px: odd and at most 31.
+pub fn check_bt_window(window: usize) -> Result<(), String> {
+    if window.is_multiple_of(2) || window > 31 {
+        return Err(format!(
+            "Birchfield-Tomasi window {window} px: must be odd and at most 31"
+        ));
+    }
+    Ok(())
+}
+
 /// Disparities (px, NaN = invalid) of the left image of a rectified pair.
 ///
 /// # Examples
@@ -182,11 +192,7 @@ pub fn sgm_disparity(
             (d, t1)
         }
         MatchCost::BirchfieldTomasi { window } => {
-            if window % 2 == 0 || window > 31 {
-                return Err(format!(
-                    "Birchfield-Tomasi window {window} px: must be odd and at most 31"
-                ));
-            }
+            check_bt_window(window)?;
             let costs = bt_costs(left, right, range, window);
             let t1 = std::time::Instant::now();
             let d = aggregate_and_select(&costs, &config.sgm, Some(left), &config.select);

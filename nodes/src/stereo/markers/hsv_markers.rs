@@ -79,17 +79,32 @@ impl Default for BlobParams {
 impl BlobParams {
     /// Checks ranges; the error names the parameter.
     pub fn check(&self) -> Result<(), String> {
+        match self.problems().into_iter().next() {
+            Some((_, problem)) => Err(problem),
+            None => Ok(()),
+        }
+    }
+
+    /// Every range problem, as `(parameter, problem)` pairs.
+    pub fn problems(&self) -> Vec<(&'static str, String)> {
+        let mut problems = Vec::new();
         let (h0, h1) = self.hue_deg;
         if !(0.0..=360.0).contains(&h0) || !(0.0..=360.0).contains(&h1) {
-            return Err(format!("hue_deg [{h0}, {h1}]: both must be in 0..360 deg"));
-        }
-        if self.min_area_px > self.max_area_px {
-            return Err(format!(
-                "min_area_px {} is above max_area_px {}",
-                self.min_area_px, self.max_area_px
+            problems.push((
+                "hue_deg",
+                format!("hue_deg [{h0}, {h1}]: both must be in 0..360 deg"),
             ));
         }
-        Ok(())
+        if self.min_area_px > self.max_area_px {
+            problems.push((
+                "min_area_px",
+                format!(
+                    "min_area_px {} is above max_area_px {}",
+                    self.min_area_px, self.max_area_px
+                ),
+            ));
+        }
+        problems
     }
 
     fn hue_ok(&self, h: f64) -> bool {

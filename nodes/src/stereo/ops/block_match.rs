@@ -20,18 +20,33 @@ pub struct BlockMatch {
     pub window: usize,
 }
 
+impl BlockMatch {
+    fn even_window(&self) -> Option<String> {
+        let window = self.window;
+        window
+            .is_multiple_of(2)
+            .then(|| format!("window = {window}: must be odd"))
+    }
+}
+
 impl RunOp for BlockMatch {
     type Inputs = MatcherInputs;
     type Outputs = DisparityOutputs;
+
+    fn check(&self, _: Wired) -> Vec<(&'static str, String)> {
+        let mut problems = self.matcher.check();
+        problems.extend(self.even_window().map(|m| ("window", m)));
+        problems
+    }
 
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
         let (left, right) = inputs.grey_pair()?;
         let m = &self.matcher;
         let range = m.range(inputs.min_disparity, inputs.max_disparity, left.width)?;
-        let window = self.window;
-        if window.is_multiple_of(2) {
-            return Err(OpError::invalid(format!("window = {window}: must be odd")));
+        if let Some(m) = self.even_window() {
+            return Err(OpError::invalid(m));
         }
+        let window = self.window;
         let refine = m.refine()?;
         let (w, h) = (left.width, left.height);
         let mut data = block_match(&left, &right, range, self.cost, window, &m.select());

@@ -124,7 +124,6 @@ impl HsvMarkers {
     }
 }
 
-/// The interleaved 8-bit RGB samples of input `port`.
 /// The 8-bit RGB pixels of `img`; an error naming `port` for another kind of
 /// image, or for one that is grey throughout (no hue to find markers by).
 fn rgb8<'a>(img: &'a Image, port: &str) -> Result<&'a [u8], OpError> {
@@ -158,6 +157,10 @@ fn rgb8<'a>(img: &'a Image, port: &str) -> Result<&'a [u8], OpError> {
 impl RunOp for HsvMarkers {
     type Inputs = HsvMarkersInputs;
     type Outputs = HsvMarkersOutputs;
+
+    fn check(&self, _: Wired) -> Vec<(&'static str, String)> {
+        self.blob_params().problems()
+    }
 
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
         let (left, right) = (inputs.left, inputs.right);

@@ -99,17 +99,29 @@ impl MatcherParams {
         }
     }
 
+    /// What [`MatcherParams::refine`] would refuse, at validation.
+    pub(crate) fn check(&self) -> Vec<(&'static str, String)> {
+        self.even_refine_window()
+            .map(|m| ("refine_window_px", m))
+            .into_iter()
+            .collect()
+    }
+
+    fn even_refine_window(&self) -> Option<String> {
+        let window = self.refine_window_px;
+        (self.refine != Refine::None && window.is_multiple_of(2))
+            .then(|| format!("refine_window_px = {window}: must be odd"))
+    }
+
     /// The intensity refinement, `None` when off; an even window is an error.
     pub(crate) fn refine(&self) -> Result<Option<RefineParams>, OpError> {
         if self.refine == Refine::None {
             return Ok(None);
         }
-        let window = self.refine_window_px;
-        if window.is_multiple_of(2) {
-            return Err(OpError::invalid(format!(
-                "refine_window_px = {window}: must be odd"
-            )));
+        if let Some(m) = self.even_refine_window() {
+            return Err(OpError::invalid(m));
         }
+        let window = self.refine_window_px;
         Ok(Some(RefineParams {
             half_window: window / 2,
             iterations: 2,

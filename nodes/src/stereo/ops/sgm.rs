@@ -1,7 +1,10 @@
 //! `stereo.sgm`: semi-global matching of a rectified pair.
 
 use super::matcher::{DisparityOutputs, MatcherInputs, MatcherParams};
-use crate::stereo::{MatchCost, Paths, SgmConfig, SgmParams, sgm_disparity};
+use crate::stereo::{
+    MatchCost, Paths, SgmConfig, SgmParams, check_bt_window, check_census_window, check_penalties,
+    sgm_disparity,
+};
 use fusegraph_engine::typed::prelude::*;
 
 /// Semi-global matching (census or Birchfield-Tomasi costs, 5 paths in one
@@ -90,6 +93,21 @@ impl Sgm {
 impl RunOp for Sgm {
     type Inputs = MatcherInputs;
     type Outputs = DisparityOutputs;
+
+    fn check(&self, _: Wired) -> Vec<(&'static str, String)> {
+        let mut problems = self.matcher.check();
+        let window = match self.cost {
+            SgmCost::Census => {
+                let [w, h] = self.census_window;
+                check_census_window(w, h).map_err(|e| ("census_window", e))
+            }
+            SgmCost::Bt => check_bt_window(self.bt_window).map_err(|e| ("bt_window", e)),
+        };
+        problems.extend(window.err());
+        problems.extend(Paths::from_count(self.paths).err().map(|e| ("paths", e)));
+        problems.extend(check_penalties(self.p1, self.p2).err().map(|e| ("p2", e)));
+        problems
+    }
 
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
         let (left, right) = inputs.grey_pair()?;

@@ -1,6 +1,7 @@
 //! Cache keys: blake3 over what decides a node's outputs and only that: the op
-//! name and version, the parameters in canonical sorted form (path parameters by
-//! content, not by name), and the keys of the inputs. Sinks also hash the output
+//! name and version, the parameters that differ from their declared defaults in
+//! canonical sorted form (path parameters by content, not by name), and the keys
+//! of the inputs. Sinks also hash the output
 //! folder they write to.
 
 use crate::error::{ErrorKind, GraphError, GraphErrors};
@@ -79,7 +80,7 @@ pub fn node_key(
 ) -> Result<NodeKey, Vec<(String, std::io::Error)>> {
     let spec = node.op.spec();
     let mut h = blake3::Hasher::new();
-    h.update(b"fusegraph node key v1\0");
+    h.update(b"fusegraph node key v2\0");
     put_str(&mut h, &spec.name);
     h.update(&spec.version.to_le_bytes());
     if let Some(origin) = &spec.origin {
@@ -88,6 +89,16 @@ pub fn node_key(
     }
     let mut problems = Vec::new();
     for (name, value) in &node.params.0 {
+        // A parameter at its declared default is left out: an op that gains
+        // a parameter whose default reproduces its old outputs keeps its
+        // cached results. (A changed default changes the outputs for the
+        // same graph, which bumps the op's version.)
+        if spec
+            .param_spec(name)
+            .is_some_and(|p| p.default.as_ref() == Some(value))
+        {
+            continue;
+        }
         put_str(&mut h, name);
         if let Err(e) = put_param(&mut h, value) {
             problems.push((name.clone(), e));
@@ -169,4 +180,66 @@ fn put_param(h: &mut blake3::Hasher, value: &ParamValue) -> std::io::Result<()> 
 /// -0.0 and 0.0 are the same parameter.
 fn canonical(x: f64) -> u64 {
     if x == 0.0 { 0 } else { x.to_bits() }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::graph::GraphDoc;
+    use crate::op::{Inputs, Op, OpError, OpSpec, Outputs, RunCtx};
+    use crate::param::{ParamSpec, Params};
+    use crate::registry::Registry;
+    use crate::validate::validate;
+    use crate::value::ValueType;
+    use std::sync::Arc;
+
+    struct Source(OpSpec);
+
+    impl Op for Source {
+        fn spec(&self) -> &OpSpec {
+            &self.0
+        }
+        fn run(&self, _: &Inputs, _: &Params, _: &mut RunCtx) -> Result<Outputs, OpError> {
+            unreachable!("keys only")
+        }
+    }
+
+    /// The key of node `a` in `text`, with `test.source` declaring `params`.
+    fn key_of(text: &str, params: &[ParamSpec]) -> NodeKey {
+        let mut spec = OpSpec::new("test.source", 1, "A number").output(
+            "value",
+            ValueType::Scalar,
+            "The number",
+        );
+        for p in params {
+            spec = spec.param(p.clone());
+        }
+        let mut registry = Registry::new();
+        registry.register(Arc::new(Source(spec))).unwrap();
+        let doc = GraphDoc::parse(text, Path::new("g.toml")).unwrap();
+        let graph = validate(&doc, &registry).unwrap();
+        node_key(&graph.nodes[0], |_| NodeKey([0; 32]), Path::new("out")).unwrap()
+    }
+
+    #[test]
+    fn a_parameter_added_at_its_default_keeps_the_key_and_set_otherwise_changes_it() {
+        let value = ParamSpec::float("value", 1.0, "mm", "The number");
+        let gain = ParamSpec::float("gain", 1.0, "", "Added later; 1 is the old behaviour");
+        let graph = "[node.a]\nop = \"test.source\"\nvalue = 2.0\n";
+        let before = key_of(graph, std::slice::from_ref(&value));
+        let after = key_of(graph, &[value.clone(), gain.clone()]);
+        assert_eq!(before, after, "a new parameter at its default");
+        let explicit = key_of(
+            "[node.a]\nop = \"test.source\"\nvalue = 2.0\ngain = 1\n",
+            &[value.clone(), gain.clone()],
+        );
+        assert_eq!(before, explicit, "written out at its default");
+        let set = key_of(
+            "[node.a]\nop = \"test.source\"\nvalue = 2.0\ngain = 1.5\n",
+            &[value.clone(), gain],
+        );
+        assert_ne!(before, set, "set to another value");
+        let default_value = key_of("[node.a]\nop = \"test.source\"\n", &[value]);
+        assert_ne!(before, default_value, "value 2 is not the default 1");
+    }
 }

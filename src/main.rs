@@ -98,12 +98,49 @@ enum Command {
         /// Resolution preset: full (0.6 x 0.6 x 1.0 mm voxels) or small (1.5 mm, fast).
         #[arg(long, default_value = "full", value_parser = ["full", "small"])]
         size: String,
+        /// Any other parameter of `phantom.generate` (see `fusegraph nodes`), as
+        /// KEY=VALUE in TOML syntax, e.g. `--set motion=\"sag\" --set motion_peak_mm=5`
+        /// (repeatable). Checked as a graph's parameters are.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        sets: Vec<String>,
     },
     /// Measure the engine: scheduler overhead per node, cold and cached.
     Bench {
         #[command(subcommand)]
         what: bench::BenchCommand,
     },
+}
+
+/// The phantom `fusegraph phantom` writes: `phantom.generate`'s parameters,
+/// `seed` and `size` and `KEY=VALUE` settings checked as in a graph (a one-node
+/// graph is validated, so a misspelt key or a value out of range is named).
+fn phantom_config(
+    seed: u64,
+    size: &str,
+    sets: &[String],
+    registry: &Registry,
+) -> anyhow::Result<fusegraph_nodes::phantom::PhantomConfig> {
+    use fusegraph_engine::typed::declaration::ParamSet;
+    let file = std::path::Path::new("<fusegraph phantom>");
+    let text = format!(
+        "[graph]\nname = \"phantom\"\n[node.phantom]\nop = \"phantom.generate\"\nseed = {seed}\nsize = \"{size}\"\n"
+    );
+    let mut doc = fusegraph_engine::graph::GraphDoc::parse(&text, file)?;
+    let mut errors: Vec<_> = sets
+        .iter()
+        .filter_map(|s| doc.apply_set(&format!("phantom.{s}")).err())
+        .collect();
+    let graph = match fusegraph_engine::validate::validate(&doc, registry) {
+        Ok(graph) if errors.is_empty() => graph,
+        Ok(_) => return Err(GraphErrors(errors).into()),
+        Err(GraphErrors(more)) => {
+            errors.extend(more);
+            return Err(GraphErrors(errors).into());
+        }
+    };
+    let op = fusegraph_nodes::phantom::ops::Generate::from_params(&graph.nodes[0].params)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    Ok(op.config())
 }
 
 /// Where a run writes and what it reuses (`run` and `sweep`).
@@ -324,13 +361,13 @@ fn execute(cli: Cli, registry: &Registry) -> anyhow::Result<ExitCode> {
             print!("{}", fusegraph_engine::dot::to_dot(&valid));
             Ok(ExitCode::SUCCESS)
         }
-        Command::Phantom { out, seed, size } => {
-            let config = fusegraph_nodes::phantom::PhantomConfig {
-                seed,
-                size: fusegraph_nodes::phantom::PhantomSize::parse(&size)
-                    .context("size is full or small")?,
-                ..Default::default()
-            };
+        Command::Phantom {
+            out,
+            seed,
+            size,
+            sets,
+        } => {
+            let config = phantom_config(seed, &size, &sets, registry)?;
             let started = std::time::Instant::now();
             let g =
                 fusegraph_nodes::phantom::generate(&config, &out).map_err(anyhow::Error::msg)?;

@@ -178,6 +178,26 @@ pub fn spec_of<T: RunOp>() -> Result<OpSpec, String> {
     })
 }
 
+/// The declared defaults of `T` (an op or a parameter group) as the engine's
+/// parameter values; a parameter without a default is left out.
+pub fn default_params<T: ParamSet>() -> Params {
+    Params(
+        T::param_decls()
+            .into_iter()
+            .filter_map(|d| {
+                let p = param_spec(d);
+                Some((p.name, p.default?))
+            })
+            .collect(),
+    )
+}
+
+/// `T` (an op or a parameter group) with every parameter at its declared
+/// default; `None` when one has no default.
+pub fn declared_defaults<T: ParamSet>() -> Option<T> {
+    T::from_params(&default_params::<T>()).ok()
+}
+
 /// The engine's spec of one declared parameter.
 pub fn param_spec(p: decl::ParamDecl) -> ParamSpec {
     ParamSpec {

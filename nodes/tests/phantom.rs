@@ -7,7 +7,8 @@ use fusegraph_nodes::calib::refine_corner;
 use fusegraph_nodes::camera::isometry_from_matrix;
 use fusegraph_nodes::dicom::load_series;
 use fusegraph_nodes::phantom::{
-    GroundTruth, PhantomConfig, PhantomSize, SurfaceSimParams, generate, simulate_camera_surface,
+    GroundTruth, MotionKind, PhantomConfig, PhantomSize, SurfaceSimParams, generate,
+    simulate_camera_surface,
 };
 use nalgebra::{Isometry3, Point2, Point3, Vector3};
 use std::path::{Path, PathBuf};
@@ -505,4 +506,122 @@ fn the_detector_survives_jpeg_compression() {
         }
     }
     assert!(worst < 0.6, "worst corner error {worst} px after JPEG");
+}
+
+/// The small phantom of seed 11 with 3 calibration pairs and 1 view, as the
+/// generator wrote it before acquisition conditions existed (ebad545): every
+/// condition at its default must give these bytes, so no cached result of the
+/// ideal phantom changes. A deliberate change of the ideal phantom bumps
+/// `phantom.generate`'s version and updates this digest.
+const IDEAL_SMALL_SEED11_DIGEST: &str =
+    "6e15fd4871539f3f1592b7fdca80d33fe2a76cc749b52be14a6543bbfe5baa45";
+
+#[test]
+fn default_conditions_give_the_ideal_phantoms_bytes() {
+    let config = PhantomConfig {
+        size: PhantomSize::Small,
+        calibration_pairs: 3,
+        views: 1,
+        seed: 11,
+        ..PhantomConfig::default()
+    };
+    let t = tempfile::tempdir().unwrap();
+    generate(&config, t.path()).unwrap();
+    let digest = fusegraph_engine::hash::hash_path(t.path()).unwrap();
+    assert_eq!(digest.to_hex().as_str(), IDEAL_SMALL_SEED11_DIGEST);
+}
+
+/// The small phantom with the tissue sagged 10 mm between scan and cameras.
+fn sagged_phantom() -> &'static (PathBuf, GroundTruth) {
+    static PHANTOM: OnceLock<(PathBuf, GroundTruth)> = OnceLock::new();
+    PHANTOM.get_or_init(|| {
+        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("phantom-tests-sag");
+        let _ = std::fs::remove_dir_all(&dir);
+        let mut config = PhantomConfig {
+            size: PhantomSize::Small,
+            calibration_pairs: 3,
+            views: 2,
+            ..PhantomConfig::default()
+        };
+        config.conditions.motion = MotionKind::Sag;
+        config.conditions.motion_peak_mm = 10.0;
+        config.conditions.motion_direction_deg = 30.0;
+        let g = generate(&config, &dir).unwrap();
+        (dir, g.truth)
+    })
+}
+
+#[test]
+fn moved_targets_are_the_field_applied_to_the_scanned_ones() {
+    let (_, truth) = sagged_phantom();
+    let field = truth.motion.as_ref().expect("the truth holds the field");
+    assert_eq!(field.kind, MotionKind::Sag);
+    let to_world = isometry_from_matrix(&truth.phantom_to_world);
+    let mri_to_phantom = isometry_from_matrix(&truth.phantom_to_mri).inverse();
+    let mut largest: f64 = 0.0;
+    for l in &truth.lesions {
+        let scanned = mri_to_phantom * Point3::from(l.center_mri_mm);
+        let expected = to_world * field.moved(&scanned);
+        assert!((Point3::from(l.center_world_mm) - expected).norm() < 1e-5);
+        let recorded = Point3::from(l.scanned_world_mm.expect("scanned position"));
+        assert!((recorded - to_world * scanned).norm() < 1e-5);
+        largest = largest.max((expected - recorded).norm());
+    }
+    // Lesions lie inside the dome, below its apex: they move, by less than
+    // the peak.
+    assert!(largest > 1.0 && largest <= 10.0 + 1e-9, "{largest}");
+    for m in &truth.markers {
+        let scanned = Point3::from(m.scanned_world_mm.expect("scanned position"));
+        let moved = Point3::from(m.center_world_mm);
+        let shift = (moved - scanned).norm();
+        assert!(shift <= 10.0 + 1e-6, "marker {}: {shift}", m.id);
+    }
+    // The truth reads back with its field (JSON keeps 17 digits; the parser
+    // may round the last bit).
+    let back = GroundTruth::load(&sagged_phantom().0.join("ground_truth.json")).unwrap();
+    let back = back.motion.expect("the field read back");
+    assert_eq!((back.kind, back.peak_mm), (field.kind, field.peak_mm));
+    let probe = Point3::new(10.0, -20.0, 30.0);
+    assert!((back.moved(&probe) - field.moved(&probe)).norm() < 1e-12);
+}
+
+#[test]
+fn the_cameras_see_the_markers_where_the_tissue_moved_them() {
+    let (dir, truth) = sagged_phantom();
+    let mut on_blob = 0;
+    let mut scanned_off_blob = 0;
+    for view in &truth.views {
+        let pose = isometry_from_matrix(&view.left_camera_to_world);
+        let img = rgb(&dir.join(&view.left));
+        let eye = Point3::from(pose.translation.vector);
+        for &id in &view.markers_visible_left {
+            let m = &truth.markers[id as usize];
+            let face = Point3::from(m.face_center_world_mm);
+            if (eye - face).normalize().dot(&Vector3::from(m.normal_world)) < 0.5 {
+                continue;
+            }
+            let at = |p: Point3<f64>| {
+                let px = truth.rig.left.project(&(pose.inverse() * p)).unwrap();
+                blob_centroid(&img, (px.x.round() as u32, px.y.round() as u32))
+            };
+            let (centroid, _) = at(face).unwrap_or_else(|| {
+                panic!("{}: moved marker {id} is not on a green blob", view.left)
+            });
+            let px = truth.rig.left.project(&(pose.inverse() * face)).unwrap();
+            assert!(
+                (centroid - px).norm() < 1.0,
+                "marker {id}: {centroid} vs {px}"
+            );
+            on_blob += 1;
+            // Where it was scanned (the face moved with the gel core), the
+            // image shows no marker: the motion is really in the images.
+            let scanned_face = face
+                + (Point3::from(m.scanned_world_mm.unwrap()) - Point3::from(m.center_world_mm));
+            if (scanned_face - face).norm() > 0.75 * m.diameter_mm {
+                scanned_off_blob += at(scanned_face).is_none() as usize;
+            }
+        }
+    }
+    assert!(on_blob >= 4, "{on_blob} markers checked");
+    assert!(scanned_off_blob >= 1, "no marker moved far enough to check");
 }

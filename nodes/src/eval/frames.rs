@@ -99,6 +99,7 @@ pub(crate) fn test_truth() -> GroundTruth {
                 face_center_world_mm: (to_world * m.face_center()).into(),
                 normal_world: (to_world * Vector3::from(m.normal)).into(),
                 diameter_mm: 2.0 * m.radius_mm,
+                scanned_world_mm: None,
             })
             .collect(),
         lesions: Vec::new(),
@@ -125,6 +126,7 @@ pub(crate) fn test_truth() -> GroundTruth {
         }],
         skin_world_mm: skin,
         shape,
+        motion: None,
     }
 }
 

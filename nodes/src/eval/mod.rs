@@ -16,8 +16,8 @@ pub use disparity::{DisparityErrors, bad_metric_name, disparity_errors};
 pub use frames::{EVAL_FRAMES, frame_to_world};
 pub use markers::{MarkerComparison, compare_markers, identify_markers, true_marker_centres};
 pub use registration::{
-    OverlapErrors, RegistrationErrors, overlap_errors, registration_errors, target_errors,
-    true_mri_to_camera,
+    OverlapErrors, RegistrationErrors, TrueMapping, overlap_errors, registration_errors,
+    target_errors, true_mri_to_camera,
 };
 pub use surface::{SurfaceDistances, skin_distances};
 

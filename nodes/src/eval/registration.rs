@@ -4,18 +4,54 @@
 
 use crate::camera::isometry_from_matrix;
 use crate::cloud::Nearest;
-use crate::phantom::GroundTruth;
+use crate::phantom::{GroundTruth, MotionField};
 use nalgebra::{Isometry3, Point3};
 
-/// The true MRI (`mri_lps`) -> left camera (`camera_left`) transform of
-/// phantom view `view`, mm; an unknown view is an error naming it.
-pub fn true_mri_to_camera(truth: &GroundTruth, view: usize) -> Result<Isometry3<f64>, String> {
+/// Where the truth puts MRI points in the left camera frame of one view: the
+/// rigid MRI -> camera transform of the phantom as scanned, and, when the
+/// tissue moved between the scan and the camera session, that motion.
+#[derive(Debug, Clone)]
+pub struct TrueMapping {
+    /// `mri_lps` -> `camera_left` of the phantom as scanned, mm.
+    pub rigid: Isometry3<f64>,
+    /// The motion (phantom frame) with `mri_lps` -> phantom and phantom ->
+    /// `camera_left`; `None` when nothing moved.
+    motion: Option<(MotionField, Isometry3<f64>, Isometry3<f64>)>,
+}
+
+impl TrueMapping {
+    /// Where MRI point `p` (`mri_lps`, mm) is in the camera session
+    /// (`camera_left`, mm).
+    pub fn apply(&self, p: &Point3<f64>) -> Point3<f64> {
+        match &self.motion {
+            None => self.rigid * p,
+            Some((field, mri_to_phantom, phantom_to_camera)) => {
+                phantom_to_camera * field.moved(&(mri_to_phantom * p))
+            }
+        }
+    }
+}
+
+/// The true mapping of MRI points (`mri_lps`) into the left camera
+/// (`camera_left`) of phantom view `view`, motion included; an unknown view is
+/// an error naming it.
+pub fn true_mri_to_camera(truth: &GroundTruth, view: usize) -> Result<TrueMapping, String> {
     let v = truth
         .views
         .get(view)
         .ok_or_else(|| format!("view {view} does not exist ({} views)", truth.views.len()))?;
-    Ok(isometry_from_matrix(&v.left_camera_to_world).inverse()
-        * isometry_from_matrix(&truth.mri_to_world))
+    let world_to_camera = isometry_from_matrix(&v.left_camera_to_world).inverse();
+    let motion = truth.motion.as_ref().filter(|m| !m.is_still()).map(|m| {
+        (
+            m.clone(),
+            isometry_from_matrix(&truth.phantom_to_mri).inverse(),
+            world_to_camera * isometry_from_matrix(&truth.phantom_to_world),
+        )
+    });
+    Ok(TrueMapping {
+        rigid: world_to_camera * isometry_from_matrix(&truth.mri_to_world),
+        motion,
+    })
 }
 
 /// How well a registered source cloud lies on its target.
@@ -72,20 +108,21 @@ pub struct RegistrationErrors {
     pub translation_error_mm: f64,
 }
 
-/// The errors of `estimated` against `true_mc` (both `mri_lps` ->
-/// `camera_left`, mm; see [`true_mri_to_camera`]) where the robot acts: at
-/// the truth's lesion centres, in camera space.
+/// The errors of `estimated` (`mri_lps` -> `camera_left`, mm) against the
+/// truth's mapping (see [`true_mri_to_camera`]) where the robot acts: at the
+/// lesion centres as the camera session has them (moved, if the tissue
+/// moved), in camera space. The rotation is compared with the rigid part.
 pub fn registration_errors(
     truth: &GroundTruth,
-    true_mc: &Isometry3<f64>,
+    true_mc: &TrueMapping,
     estimated: &Isometry3<f64>,
 ) -> RegistrationErrors {
     let errors: Vec<f64> = truth
         .lesions
         .iter()
         .map(|l| {
-            (estimated * Point3::from(l.center_mri_mm) - true_mc * Point3::from(l.center_mri_mm))
-                .norm()
+            let p = Point3::from(l.center_mri_mm);
+            (estimated * p - true_mc.apply(&p)).norm()
         })
         .collect();
     let (tre_mm, tre_max_mm) = mean_and_max(&errors);
@@ -93,23 +130,26 @@ pub fn registration_errors(
     RegistrationErrors {
         tre_mm,
         tre_max_mm,
-        rotation_error_deg: estimated.rotation.angle_to(&true_mc.rotation).to_degrees(),
-        translation_error_mm: (estimated * centre - true_mc * centre).norm(),
+        rotation_error_deg: estimated
+            .rotation
+            .angle_to(&true_mc.rigid.rotation)
+            .to_degrees(),
+        translation_error_mm: (estimated * centre - true_mc.apply(&centre)).norm(),
     }
 }
 
 /// Mean and largest distance (mm) of `mapped` (in `camera_left`) from where
-/// `true_mc` (the true `mri_lps` -> `camera_left`) puts `targets` (in
+/// `true_mc` (the truth's `mri_lps` -> `camera_left`) puts `targets` (in
 /// `mri_lps`), pair by pair; both 0 without targets.
 pub fn target_errors(
-    true_mc: &Isometry3<f64>,
+    true_mc: &TrueMapping,
     targets: &[Point3<f64>],
     mapped: &[Point3<f64>],
 ) -> (f64, f64) {
     let errors: Vec<f64> = targets
         .iter()
         .zip(mapped)
-        .map(|(p, m)| (true_mc * p - m).norm())
+        .map(|(p, m)| (true_mc.apply(p) - m).norm())
         .collect();
     mean_and_max(&errors)
 }
@@ -136,19 +176,20 @@ mod tests {
                 center_mri_mm: centre,
                 center_world_mm: [0.0; 3],
                 diameter_mm: 8.0,
+                scanned_world_mm: None,
             });
         }
         let exact = true_mri_to_camera(&truth, 0).unwrap();
-        let e = registration_errors(&truth, &exact, &exact);
+        let e = registration_errors(&truth, &exact, &exact.rigid);
         assert!(e.tre_max_mm < 1e-9 && e.rotation_error_deg < 1e-6, "{e:?}");
         let shift = Isometry3::translation(0.0, 1.5, 0.0);
-        let e = registration_errors(&truth, &exact, &(shift * exact));
+        let e = registration_errors(&truth, &exact, &(shift * exact.rigid));
         assert!((e.tre_mm - 1.5).abs() < 1e-9 && (e.tre_max_mm - 1.5).abs() < 1e-9);
         assert!((e.translation_error_mm - 1.5).abs() < 1e-9);
         let err = true_mri_to_camera(&truth, 3).unwrap_err();
         assert_eq!(err, "view 3 does not exist (1 views)");
         let p = [Point3::new(1.0, 2.0, 3.0)];
-        let mapped = [shift * exact * p[0]];
+        let mapped = [shift * exact.rigid * p[0]];
         let (mean, max) = target_errors(&exact, &p, &mapped);
         assert!((mean - 1.5).abs() < 1e-9 && (max - 1.5).abs() < 1e-9);
     }

@@ -1,6 +1,6 @@
 //! Distances from a reconstructed surface to the phantom's true skin.
 
-use crate::phantom::PhantomShape;
+use crate::phantom::{MotionField, PhantomShape};
 use nalgebra::{Isometry3, Point3, Vector3};
 
 /// Statistics of vertex-to-skin distances, mm.
@@ -24,8 +24,14 @@ pub struct SurfaceDistances {
 /// base (phantom z below `base_margin_mm`), and nearer the base plane (the
 /// table a camera sees around the phantom) than the skin. `None` when no vertex
 /// is left.
+///
+/// With `motion`, the vertices lie on the skin as it moved (the camera
+/// session): each is mapped back to where it was scanned, and its distance
+/// there is scaled by how the motion stretched the skin's normal direction
+/// (exact to first order in the distance).
 pub fn skin_distances(
     shape: &PhantomShape,
+    motion: Option<&MotionField>,
     to_phantom: &Isometry3<f64>,
     vertices: impl Iterator<Item = [f64; 3]>,
     marker_margin_mm: f64,
@@ -34,7 +40,11 @@ pub fn skin_distances(
     let mut d: Vec<f64> = vertices
         .map(|v| to_phantom * Point3::from(v))
         .filter(|p| p.z >= base_margin_mm)
-        .filter(|p| {
+        .map(|p| match motion {
+            Some(field) if !field.is_still() => (field.unmoved(&p), Some(field)),
+            _ => (p, None),
+        })
+        .filter(|(p, _)| {
             shape.markers.iter().all(|m| {
                 let s = Point3::from(m.skin_point_mm);
                 let n = Vector3::from(m.normal);
@@ -45,13 +55,20 @@ pub fn skin_distances(
                     || h < -m.below_skin_mm - marker_margin_mm
             })
         })
-        .filter(|p| {
+        .filter(|(p, _)| {
             shape
                 .lesions
                 .iter()
                 .all(|l| (p - Point3::from(l.center_mm)).norm() > l.radius_mm + marker_margin_mm)
         })
-        .map(|p| (shape.distance_to_ellipsoid(&p), p.z))
+        .map(|(p, field)| {
+            let d = shape.distance_to_ellipsoid(&p);
+            let stretch = field.map_or(1.0, |f| {
+                let n = shape.skin_normal(&p);
+                1.0 / f.moved_normal_stretch(&p, &n)
+            });
+            (d * stretch, p.z)
+        })
         .filter(|&(skin, above_base)| skin <= above_base)
         .map(|(skin, _)| skin)
         .collect();

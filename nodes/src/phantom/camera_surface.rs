@@ -4,6 +4,7 @@
 //! a spurious one. It lets registration be built and measured before dense
 //! stereo exists. Output frame: the left camera of the chosen view (mm).
 
+use super::moved_shape::MovedShape;
 use super::truth::GroundTruth;
 use crate::camera::{CameraModel, isometry_from_matrix};
 use fusegraph_plugin_api::derive::Params;
@@ -75,7 +76,7 @@ pub fn simulate_camera_surface(
             truth.views.len()
         )
     })?;
-    let shape = &truth.shape;
+    let shape = MovedShape::new(truth.shape.clone(), truth.motion_field());
     let phantom_to_world = isometry_from_matrix(&truth.phantom_to_world);
     let left_to_world = isometry_from_matrix(&view.left_camera_to_world);
     let left_to_right = isometry_from_matrix(&truth.rig.left_to_right);
@@ -98,7 +99,7 @@ pub fn simulate_camera_surface(
             };
             let point = left_centre + dir * hit.t;
             if !seen_from(
-                shape,
+                &shape,
                 &right_centre,
                 &point,
                 &truth.rig.right,
@@ -176,7 +177,7 @@ pub fn simulate_camera_surface(
 /// Whether `point` (phantom frame) is seen by the right camera: in its image and
 /// the first thing along the ray from its centre.
 fn seen_from(
-    shape: &super::shape::PhantomShape,
+    shape: &MovedShape,
     eye: &Point3<f64>,
     point: &Point3<f64>,
     camera: &CameraModel,

@@ -3,7 +3,10 @@
 //! Deterministic: the same configuration gives the same bytes, whatever the
 //! thread count.
 
+use super::conditions::Conditions;
 use super::dicom_series::{RESCALE_SLOPE, SeriesIds, write_series};
+use super::motion::MotionField;
+use super::moved_shape::MovedShape;
 use super::mri::{MriParams, covering_grid, signal_of, synthesize};
 use super::render::{RenderParams, Renderer, write_png};
 use super::rig::{Rig, board_poses, view_poses};
@@ -55,6 +58,8 @@ pub struct PhantomConfig {
     pub calibration_pairs: usize,
     /// Phantom view pairs.
     pub views: usize,
+    /// The camera session's conditions (the ideal phantom by default).
+    pub conditions: Conditions,
 }
 
 impl Default for PhantomConfig {
@@ -67,6 +72,7 @@ impl Default for PhantomConfig {
             mri_noise_sigma: 0.02,
             calibration_pairs: 18,
             views: 6,
+            conditions: Conditions::default(),
         }
     }
 }
@@ -120,6 +126,8 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
     let io = |what: &Path, e: std::io::Error| format!("{}: {e}", what.display());
     let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
     let shape = PhantomShape::build(&config.shape, &mut rng)?;
+    let c = &config.conditions;
+    let motion = MotionField::new(c.motion, c.motion_peak_mm, c.motion_direction_deg, &shape);
     let (to_mri, to_world) = (phantom_to_mri(), phantom_to_world());
     let (mri_dir, calib_dir, views_dir) = (dir.join("mri"), dir.join("calib"), dir.join("views"));
     for d in [&mri_dir, &calib_dir, &views_dir] {
@@ -212,7 +220,7 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
     let target = to_world * Point3::new(0.0, 0.0, 0.4 * config.shape.height_mm);
     let light_dir = Vector3::new(0.45, -0.35, 0.82).normalize();
     let scene = PhantomScene {
-        shape: shape.clone(),
+        body: MovedShape::new(shape.clone(), motion.clone()),
         phantom_to_world: to_world,
         light_dir,
         seed: config.seed ^ 0x5C1E,
@@ -242,9 +250,14 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
                 left: names[0].clone(),
                 right: names[1].clone(),
                 left_camera_to_world: isometry_to_matrix(left_to_world),
-                markers_visible_left: visible_markers(&shape, &to_world, &rig.left, left_to_world),
+                markers_visible_left: visible_markers(
+                    &scene.body,
+                    &to_world,
+                    &rig.left,
+                    left_to_world,
+                ),
                 markers_visible_right: visible_markers(
-                    &shape,
+                    &scene.body,
                     &to_world,
                     &rig.right,
                     &right_to_world,
@@ -256,6 +269,9 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
 
     let mri_to_world = to_world * to_mri.inverse();
     let round = |p: Point3<f64>| p.coords.map(|x| (x * 1e6).round() / 1e6).into();
+    let moved = |p: Point3<f64>| motion.moved(&p);
+    // Where a point was when scanned, recorded only when the tissue moved since.
+    let scanned = |p: Point3<f64>| (!motion.is_still()).then(|| round(to_world * p));
     let truth = GroundTruth {
         schema: SCHEMA.into(),
         seed: config.seed,
@@ -282,10 +298,13 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
             .map(|m| MarkerTruth {
                 id: m.id,
                 center_mri_mm: round(to_mri * m.gel_center()),
-                center_world_mm: round(to_world * m.gel_center()),
-                face_center_world_mm: round(to_world * m.face_center()),
-                normal_world: (to_world * Vector3::from(m.normal)).into(),
+                center_world_mm: round(to_world * moved(m.gel_center())),
+                face_center_world_mm: round(to_world * moved(m.face_center())),
+                normal_world: (to_world
+                    * motion.moved_normal(&m.face_center(), &Vector3::from(m.normal)))
+                .into(),
                 diameter_mm: 2.0 * m.radius_mm,
+                scanned_world_mm: scanned(m.gel_center()),
             })
             .collect(),
         lesions: shape
@@ -294,8 +313,9 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
             .map(|l| LesionTruth {
                 id: l.id,
                 center_mri_mm: round(to_mri * Point3::from(l.center_mm)),
-                center_world_mm: round(to_world * Point3::from(l.center_mm)),
+                center_world_mm: round(to_world * moved(Point3::from(l.center_mm))),
                 diameter_mm: 2.0 * l.radius_mm,
+                scanned_world_mm: scanned(Point3::from(l.center_mm)),
             })
             .collect(),
         rig: RigTruth {
@@ -314,9 +334,10 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
         views,
         skin_world_mm: skin_samples(&shape, 20_000, config.seed)
             .into_iter()
-            .map(|p| round(to_world * p))
+            .map(|p| round(to_world * moved(p)))
             .collect(),
         shape,
+        motion: (!motion.is_still()).then_some(motion.clone()),
     };
     let truth_file = dir.join("ground_truth.json");
     truth.save(&truth_file).map_err(|e| io(&truth_file, e))?;
@@ -331,26 +352,29 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
 }
 
 /// Markers whose coloured face a camera sees: facing it (within 75 deg), in
-/// frame by a margin, and first along the ray to the face centre.
+/// frame by a margin, and first along the ray to the face centre (all as the
+/// tissue moved).
 fn visible_markers(
-    shape: &PhantomShape,
+    body: &MovedShape,
     phantom_to_world: &Isometry3<f64>,
     camera: &crate::camera::CameraModel,
     camera_to_world: &Isometry3<f64>,
 ) -> Vec<u32> {
     let eye = phantom_to_world.inverse() * Point3::from(camera_to_world.translation.vector);
     let to_camera = camera_to_world.inverse() * phantom_to_world;
-    shape
+    let motion = &body.field;
+    body.shape
         .markers
         .iter()
         .filter(|m| {
-            let face = m.face_center();
+            let face = motion.moved(&m.face_center());
+            let normal = motion.moved_normal(&m.face_center(), &Vector3::from(m.normal));
             let towards_eye = (eye - face).normalize();
-            let facing = towards_eye.dot(&Vector3::from(m.normal)) > 75f64.to_radians().cos();
+            let facing = towards_eye.dot(&normal) > 75f64.to_radians().cos();
             let in_frame = camera.project(&(to_camera * face)).is_some_and(|p| {
                 camera.contains(&p, 2.0 * m.radius_mm * camera.fx / (to_camera * face).z)
             });
-            let first = shape
+            let first = body
                 .intersect(&eye, &-towards_eye, 0.0)
                 .is_some_and(|h| h.surface == Surface::MarkerFace(m.id));
             facing && in_frame && first

@@ -6,8 +6,11 @@
 //! partial-volume MRI or renders through an OpenCV-exact distortion model.
 
 mod camera_surface;
+mod conditions;
 mod dicom_series;
 mod generate;
+mod motion;
+mod moved_shape;
 mod mri;
 pub mod ops;
 mod render;
@@ -20,7 +23,10 @@ mod truth;
 mod truth_input;
 
 pub use camera_surface::{SimulatedSurface, SurfaceSimParams, simulate_camera_surface};
+pub use conditions::Conditions;
 pub use generate::{Generated, PhantomConfig, PhantomSize, generate};
+pub use motion::{MotionField, MotionKind};
+pub use moved_shape::{MovedHit, MovedShape};
 pub use rig::Rig;
 pub use scenes::MARKER_GREEN;
 pub use shape::{Lesion, Marker, Material, PhantomShape, ShapeParams, Triples};

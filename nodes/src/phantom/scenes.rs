@@ -2,8 +2,9 @@
 //! cluttered wall (calibration), and the phantom on a cloth-covered table lit by
 //! an off-axis lamp (phantom views). Lambertian shading; no cast shadows.
 
+use super::moved_shape::MovedShape;
 use super::render::Scene;
-use super::shape::{PhantomShape, Surface};
+use super::shape::Surface;
 use super::texture::{ValueNoise, fast_floor};
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 
@@ -102,8 +103,9 @@ impl Scene for ChessboardScene {
 
 /// The phantom on a table (world plane z = 0), lit by a lamp from `light_dir`.
 pub struct PhantomScene {
-    /// The phantom.
-    pub shape: PhantomShape,
+    /// The phantom as scanned, moved as the camera session sees it
+    /// (textures move with the tissue).
+    pub body: MovedShape,
     /// Pose of the phantom frame in the world (base on z = 0).
     pub phantom_to_world: Isometry3<f64>,
     /// Unit direction towards the lamp, world frame.
@@ -139,8 +141,8 @@ impl Scene for PhantomScene {
             f64::INFINITY
         };
         let noise = ValueNoise::new(self.seed);
-        if let Some(hit) = self.shape.intersect(&o, &d, 1e-6).filter(|h| h.t < table_t) {
-            let p = o + d * hit.t;
+        if let Some(hit) = self.body.intersect(&o, &d, 1e-6).filter(|h| h.t < table_t) {
+            let p = hit.scanned;
             let normal = self.phantom_to_world * hit.normal;
             return match hit.surface {
                 Surface::Skin => {

@@ -4,10 +4,9 @@
 //! small internal lesions. Point classification (for the MRI) and ray casting
 //! (for the cameras) are exact on this description.
 
-use fusegraph_engine::Params as ParamValues;
-use fusegraph_engine::typed::param_spec;
+use fusegraph_engine::typed::declared_defaults;
 use fusegraph_plugin_api::derive::Params;
-use fusegraph_plugin_api::typed::{ParamDefault, ParamKind, ParamRef, ParamSet, ParamType};
+use fusegraph_plugin_api::typed::{ParamDefault, ParamKind, ParamRef, ParamType};
 use nalgebra::{Point3, Rotation3, Unit, Vector3};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
@@ -168,16 +167,7 @@ pub struct ShapeParams {
 impl Default for ShapeParams {
     /// Every parameter at its declared default.
     fn default() -> Self {
-        let params = ParamValues(
-            ShapeParams::param_decls()
-                .into_iter()
-                .filter_map(|d| {
-                    let p = param_spec(d);
-                    Some((p.name, p.default?))
-                })
-                .collect(),
-        );
-        ShapeParams::from_params(&params).expect("every shape parameter has a default")
+        declared_defaults().expect("every shape parameter has a default")
     }
 }
 

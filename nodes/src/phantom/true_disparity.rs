@@ -12,7 +12,8 @@
 //! `u - x_r` px. With a perfect calibration `y_r = v`; otherwise `|v - y_r|` is
 //! the rectification's row error at that pixel.
 
-use super::shape::{PhantomShape, Surface};
+use super::moved_shape::MovedShape;
+use super::shape::Surface;
 use super::truth::GroundTruth;
 use crate::calib::StereoRectification;
 use crate::camera::{CameraModel, isometry_from_matrix};
@@ -39,8 +40,9 @@ pub enum SceneLabel {
 /// The scene and the *true* cameras of one view pair.
 #[derive(Debug, Clone)]
 pub struct ViewScene<'a> {
-    /// The phantom, in its own frame.
-    pub shape: &'a PhantomShape,
+    /// The phantom in its own frame, as it moved between the scan and this
+    /// session.
+    pub body: MovedShape,
     /// Phantom frame -> world (mm).
     pub phantom_to_world: Isometry3<f64>,
     /// The true left camera.
@@ -63,7 +65,7 @@ impl<'a> ViewScene<'a> {
             )
         })?;
         Ok(ViewScene {
-            shape: &truth.shape,
+            body: MovedShape::new(truth.shape.clone(), truth.motion_field()),
             phantom_to_world: isometry_from_matrix(&truth.phantom_to_world),
             left: &truth.rig.left,
             right: &truth.rig.right,
@@ -85,7 +87,7 @@ impl<'a> ViewScene<'a> {
             self.phantom_to_world.inverse_transform_point(origin),
             self.phantom_to_world.inverse_transform_vector(dir),
         );
-        if let Some(hit) = self.shape.intersect(&o, &d, 1e-6).filter(|h| h.t < table_t) {
+        if let Some(hit) = self.body.intersect(&o, &d, 1e-6).filter(|h| h.t < table_t) {
             let label = match hit.surface {
                 Surface::Skin => SceneLabel::Skin,
                 Surface::MarkerFace(_) => SceneLabel::MarkerFace,
@@ -244,10 +246,11 @@ pub fn true_disparity(
 mod tests {
     use super::*;
     use crate::calib::{rectify, remap};
+    use crate::phantom::motion::MotionField;
     use crate::phantom::render::{RenderParams, Renderer};
     use crate::phantom::rig::{Rig, view_poses};
     use crate::phantom::scenes::PhantomScene;
-    use crate::phantom::shape::ShapeParams;
+    use crate::phantom::shape::{PhantomShape, ShapeParams};
     use rand::SeedableRng;
 
     fn phantom() -> (PhantomShape, Isometry3<f64>) {
@@ -296,7 +299,7 @@ mod tests {
             let (shape, to_world) = phantom();
             let left_to_world = view_pose(&rig, &to_world, 1);
             let render = PhantomScene {
-                shape: shape.clone(),
+                body: MovedShape::new(shape.clone(), MotionField::still()),
                 phantom_to_world: to_world,
                 light_dir: Vector3::new(0.45, -0.35, 0.82).normalize(),
                 seed: 11,
@@ -324,7 +327,7 @@ mod tests {
 
         fn scene(&self) -> ViewScene<'_> {
             ViewScene {
-                shape: &self.shape,
+                body: MovedShape::new(self.shape.clone(), MotionField::still()),
                 phantom_to_world: self.to_world,
                 left: &self.rig.left,
                 right: &self.rig.right,
@@ -472,7 +475,7 @@ mod tests {
         let left_to_world =
             crate::camera::look_at(&eye, &Point3::new(15.0, 0.0, 60.0), &Vector3::z());
         let scene = ViewScene {
-            shape: &shape,
+            body: MovedShape::new(shape.clone(), MotionField::still()),
             phantom_to_world: to_world,
             left: &rig.left,
             right: &rig.right,
@@ -504,7 +507,7 @@ mod tests {
         let rig = Rig::paper_rig();
         let (shape, to_world) = phantom();
         let scene = ViewScene {
-            shape: &shape,
+            body: MovedShape::new(shape.clone(), MotionField::still()),
             phantom_to_world: to_world,
             left: &rig.left,
             right: &rig.right,

@@ -5,6 +5,7 @@
 //! z = 0), `left_camera` (OpenCV camera frame). All lengths in mm; matrices are
 //! row-major 4x4 `a_to_b` mapping points in frame a to frame b.
 
+use super::motion::MotionField;
 use super::shape::PhantomShape;
 use crate::camera::CameraModel;
 use serde::{Deserialize, Serialize};
@@ -47,8 +48,15 @@ pub struct GroundTruth {
     pub calibration: Vec<CalibrationPairTruth>,
     /// Phantom image pairs.
     pub views: Vec<ViewTruth>,
-    /// Points sampled uniformly over the skin (dome surface), world frame, mm.
+    /// Points sampled uniformly over the skin (dome surface), world frame, mm,
+    /// where the cameras see them (after any motion).
     pub skin_world_mm: Vec<[f64; 3]>,
+    /// How the tissue moved between the MRI and the camera session (phantom
+    /// frame); absent when it did not. World positions above are where the
+    /// cameras see things; `scanned_world_mm` fields are where they were
+    /// when scanned (`mri_to_world` applied to the MRI positions).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub motion: Option<MotionField>,
 }
 
 /// The MRI series geometry and contrast.
@@ -83,7 +91,7 @@ pub struct MarkerTruth {
     pub id: u32,
     /// Gel core centre in MRI patient LPS, mm (what MRI localisation finds).
     pub center_mri_mm: [f64; 3],
-    /// Gel core centre in world, mm.
+    /// Gel core centre in world, mm, in the camera session.
     pub center_world_mm: [f64; 3],
     /// Centre of the coloured outer face in world, mm (what cameras see).
     pub face_center_world_mm: [f64; 3],
@@ -91,6 +99,9 @@ pub struct MarkerTruth {
     pub normal_world: [f64; 3],
     /// Disc diameter, mm.
     pub diameter_mm: f64,
+    /// Gel core centre in world as scanned, mm, when the tissue moved since.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scanned_world_mm: Option<[f64; 3]>,
 }
 
 /// One lesion's true centre (the targets of target registration error).
@@ -100,10 +111,13 @@ pub struct LesionTruth {
     pub id: u32,
     /// Centre in MRI patient LPS, mm.
     pub center_mri_mm: [f64; 3],
-    /// Centre in world, mm.
+    /// Centre in world, mm, in the camera session (where a needle must go).
     pub center_world_mm: [f64; 3],
     /// Diameter, mm.
     pub diameter_mm: f64,
+    /// Centre in world as scanned, mm, when the tissue moved since.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scanned_world_mm: Option<[f64; 3]>,
 }
 
 /// Both cameras and the rig extrinsics.
@@ -169,6 +183,11 @@ pub struct ViewTruth {
 }
 
 impl GroundTruth {
+    /// The motion between scan and camera session (a still field when none).
+    pub fn motion_field(&self) -> MotionField {
+        self.motion.clone().unwrap_or_else(MotionField::still)
+    }
+
     /// Reads and checks a truth file.
     pub fn load(path: &Path) -> Result<Self, String> {
         let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;

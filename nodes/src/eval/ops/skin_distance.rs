@@ -52,8 +52,11 @@ impl RunOp for EvalSkinDistance {
             .vertices
             .chunks(3)
             .map(|c| [c[0] as f64, c[1] as f64, c[2] as f64]);
+        let motion = truth.motion_field();
+        let moved = (mesh.frame == "world").then_some(&motion);
         let d = skin_distances(
             &truth.shape,
+            moved,
             &to_phantom,
             vertices,
             self.marker_margin_mm,

@@ -49,8 +49,12 @@ impl RunOp for EvalSurface {
             .points
             .chunks(3)
             .map(|c| [c[0] as f64, c[1] as f64, c[2] as f64]);
+        // Every frame but the MRI's sees the tissue as it moved.
+        let motion = truth.motion_field();
+        let moved = (cloud.frame != "mri_lps").then_some(&motion);
         let d = skin_distances(
             &truth.shape,
+            moved,
             &to_phantom,
             points,
             self.marker_margin_mm,

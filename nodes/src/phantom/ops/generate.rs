@@ -1,6 +1,6 @@
 //! `phantom.generate`: a synthetic phantom and everything imaged of it.
 
-use crate::phantom::{PhantomConfig, PhantomSize, ShapeParams, generate};
+use crate::phantom::{Conditions, PhantomConfig, PhantomSize, ShapeParams, generate};
 use fusegraph_engine::path_value;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::PathValue;
@@ -32,6 +32,9 @@ pub struct Generate {
     /// Phantom view pairs
     #[param(default = 6, min = 1, max = 24)]
     pub views: usize,
+    /// The camera session's acquisition conditions.
+    #[param(flatten)]
+    pub conditions: Conditions,
 }
 
 /// `phantom.generate` takes no inputs.
@@ -62,6 +65,7 @@ impl Generate {
             mri_noise_sigma: self.mri_noise,
             calibration_pairs: self.calibration_pairs,
             views: self.views,
+            conditions: self.conditions.clone(),
         }
     }
 }
@@ -93,22 +97,11 @@ impl RunOp for Generate {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use fusegraph_engine::Params;
-    use fusegraph_engine::typed::declaration::ParamSet;
-    use fusegraph_engine::typed::param_spec;
+    use fusegraph_engine::typed::declared_defaults;
 
     #[test]
     fn the_defaults_are_the_generators_defaults() {
-        let defaults = Params(
-            Generate::param_decls()
-                .into_iter()
-                .filter_map(|d| {
-                    let p = param_spec(d);
-                    Some((p.name, p.default?))
-                })
-                .collect(),
-        );
-        let op = Generate::from_params(&defaults).unwrap();
+        let op: Generate = declared_defaults().unwrap();
         assert_eq!(op.config(), PhantomConfig::default());
     }
 }

@@ -31,26 +31,18 @@ pub(crate) fn shape_error(e: ValueError) -> OpError {
 #[cfg(test)]
 pub(crate) mod testing {
     use fusegraph_engine::typed::declaration::ParamSet;
-    use fusegraph_engine::typed::param_spec;
+    use fusegraph_engine::typed::declared_defaults;
     use fusegraph_engine::{Params, RunCtx};
 
     /// The parameters of `T` (an op or a group) all at their declared
     /// defaults.
     pub(crate) fn defaults<T: ParamSet>() -> T {
-        T::from_params(&default_params::<T>()).expect("every parameter has a default")
+        declared_defaults().expect("every parameter has a default")
     }
 
     /// The declared defaults of `T` as the engine's parameter values.
     pub(crate) fn default_params<T: ParamSet>() -> Params {
-        Params(
-            T::param_decls()
-                .into_iter()
-                .filter_map(|d| {
-                    let p = param_spec(d);
-                    Some((p.name, p.default?))
-                })
-                .collect(),
-        )
+        fusegraph_engine::typed::default_params::<T>()
     }
 
     /// A context for running an op outside a graph.

@@ -7,8 +7,8 @@ use fusegraph_nodes::calib::refine_corner;
 use fusegraph_nodes::camera::isometry_from_matrix;
 use fusegraph_nodes::dicom::load_series;
 use fusegraph_nodes::phantom::{
-    GroundTruth, MotionKind, PhantomConfig, PhantomSize, SurfaceSimParams, generate,
-    simulate_camera_surface,
+    Conditions, ConditionsPreset, GroundTruth, MotionKind, PhantomConfig, PhantomSize,
+    SurfaceSimParams, generate, simulate_camera_surface,
 };
 use nalgebra::{Isometry3, Point2, Point3, Vector3};
 use std::path::{Path, PathBuf};
@@ -624,4 +624,41 @@ fn the_cameras_see_the_markers_where_the_tissue_moved_them() {
     }
     assert!(on_blob >= 4, "{on_blob} markers checked");
     assert!(scanned_off_blob >= 1, "no marker moved far enough to check");
+}
+
+#[test]
+fn every_condition_gives_the_same_bytes_on_any_thread_count() {
+    // The hard preset (lamps, shadows, highlights, defocus, shot noise,
+    // Bayer, JPEG, props) with the tissue squeezed.
+    let mut conditions = Conditions::preset(ConditionsPreset::Hard);
+    conditions.motion = MotionKind::Squeeze;
+    conditions.motion_peak_mm = 8.0;
+    let config = PhantomConfig {
+        size: PhantomSize::Small,
+        calibration_pairs: 3,
+        views: 1,
+        seed: 5,
+        conditions,
+        ..PhantomConfig::default()
+    };
+    let t = tempfile::tempdir().unwrap();
+    let run = |threads: usize, name: &str| {
+        let dir = t.path().join(name);
+        let g = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| generate(&config, &dir).unwrap());
+        (fusegraph_engine::hash::hash_path(&dir).unwrap(), g.truth)
+    };
+    let (one, truth) = run(1, "one");
+    assert_eq!(one, run(2, "two").0);
+    assert!(
+        truth.views[0].left.ends_with(".jpg"),
+        "{}",
+        truth.views[0].left
+    );
+    assert_eq!(truth.props.len(), 4, "three distractors and a tool");
+    let bytes = std::fs::read(t.path().join("one").join(&truth.views[0].left)).unwrap();
+    assert_eq!(&bytes[..2], &[0xFF, 0xD8]);
 }

@@ -127,6 +127,7 @@ pub(crate) fn test_truth() -> GroundTruth {
         skin_world_mm: skin,
         shape,
         motion: None,
+        props: Vec::new(),
     }
 }
 

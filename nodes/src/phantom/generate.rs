@@ -5,12 +5,14 @@
 
 use super::conditions::Conditions;
 use super::dicom_series::{RESCALE_SLOPE, SeriesIds, write_series};
-use super::motion::MotionField;
+use super::motion::{MotionField, dome_extent};
 use super::moved_shape::MovedShape;
 use super::mri::{MriParams, covering_grid, signal_of, synthesize};
-use super::render::{RenderParams, Renderer, write_png};
+use super::props::{Prop, distractors, first_prop, occluder};
+use super::render::{RenderParams, Renderer};
 use super::rig::{Rig, board_poses, view_poses};
-use super::scenes::{Chessboard, ChessboardScene, PhantomScene};
+use super::scenes::{Chessboard, ChessboardScene, MARKER_GREEN, PhantomScene};
+use super::sensor::{image_extension, write_image};
 use super::shape::{Material, PhantomShape, ShapeParams, Surface};
 use super::truth::*;
 use crate::camera::isometry_to_matrix;
@@ -126,7 +128,7 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
     let io = |what: &Path, e: std::io::Error| format!("{}: {e}", what.display());
     let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
     let shape = PhantomShape::build(&config.shape, &mut rng)?;
-    let c = &config.conditions;
+    let c = config.conditions.resolved();
     let motion = MotionField::new(c.motion, c.motion_peak_mm, c.motion_direction_deg, &shape);
     let (to_mri, to_world) = (phantom_to_mri(), phantom_to_world());
     let (mri_dir, calib_dir, views_dir) = (dir.join("mri"), dir.join("calib"), dir.join("views"));
@@ -169,12 +171,15 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
         PhantomSize::Small => (2, 1),
         PhantomSize::Full => (4, 3),
     };
-    let render_params = |supersample: usize, seed: u64| RenderParams {
+    let render_params = |supersample: usize, seed: u64, camera| RenderParams {
         supersample,
         blur_sigma_px: 0.5,
-        noise_sigma: 1.5 / 255.0,
-        vignetting: true,
-        seed,
+        lens: c.lens(camera),
+        sensor: c.sensor(seed),
+    };
+    let ext = image_extension(c.jpeg_quality);
+    let write = |path: &Path, rgb: &[u8], camera: &crate::camera::CameraModel| {
+        write_image(path, rgb, camera.width, camera.height, c.jpeg_quality).map_err(|e| io(path, e))
     };
     let poses = board_poses(&rig, &board, config.calibration_pairs, &mut rng);
     let renderers = [Renderer::new(&rig.left), Renderer::new(&rig.right)];
@@ -190,8 +195,8 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
                 config.seed + index as u64,
             );
             let names = [
-                format!("calib/left_{index:02}.png"),
-                format!("calib/right_{index:02}.png"),
+                format!("calib/left_{index:02}.{ext}"),
+                format!("calib/right_{index:02}.{ext}"),
             ];
             for (side, (camera, camera_pose)) in
                 [(&rig.left, &left_pose), (&rig.right, &right_pose)]
@@ -199,10 +204,9 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
                     .enumerate()
             {
                 let seed = config.seed.wrapping_mul(1000) + 2 * index as u64 + side as u64;
-                let rgb =
-                    renderers[side].render(camera_pose, &scene, &render_params(calib_ss, seed));
-                let path = dir.join(&names[side]);
-                write_png(&path, &rgb, camera.width, camera.height).map_err(|e| io(&path, e))?;
+                let params = render_params(calib_ss, seed, camera);
+                let rgb = renderers[side].render(camera_pose, &scene, &params);
+                write(&dir.join(&names[side]), &rgb, camera)?;
             }
             Ok(CalibrationPairTruth {
                 index,
@@ -218,11 +222,13 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
 
     let started = Instant::now();
     let target = to_world * Point3::new(0.0, 0.0, 0.4 * config.shape.height_mm);
-    let light_dir = Vector3::new(0.45, -0.35, 0.82).normalize();
+    let props = scene_props(&c, &shape, &to_world);
     let scene = PhantomScene {
         body: MovedShape::new(shape.clone(), motion.clone()),
         phantom_to_world: to_world,
-        light_dir,
+        lighting: c.lighting(&target),
+        skin_texture: c.skin_texture(),
+        props: props.clone(),
         seed: config.seed ^ 0x5C1E,
     };
     let view_poses = view_poses(&rig, &target, config.views, &mut rng);
@@ -232,8 +238,8 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
         .map(|(index, left_to_world)| {
             let right_to_world = rig.right_pose(left_to_world);
             let names = [
-                format!("views/left_{index:02}.png"),
-                format!("views/right_{index:02}.png"),
+                format!("views/left_{index:02}.{ext}"),
+                format!("views/right_{index:02}.{ext}"),
             ];
             for (side, (camera, pose)) in
                 [(&rig.left, left_to_world), (&rig.right, &right_to_world)]
@@ -241,23 +247,18 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
                     .enumerate()
             {
                 let seed = config.seed.wrapping_mul(7000) + 2 * index as u64 + side as u64;
-                let rgb = renderers[side].render(pose, &scene, &render_params(view_ss, seed));
-                let path = dir.join(&names[side]);
-                write_png(&path, &rgb, camera.width, camera.height).map_err(|e| io(&path, e))?;
+                let rgb =
+                    renderers[side].render(pose, &scene, &render_params(view_ss, seed, camera));
+                write(&dir.join(&names[side]), &rgb, camera)?;
             }
             Ok(ViewTruth {
                 index,
                 left: names[0].clone(),
                 right: names[1].clone(),
                 left_camera_to_world: isometry_to_matrix(left_to_world),
-                markers_visible_left: visible_markers(
-                    &scene.body,
-                    &to_world,
-                    &rig.left,
-                    left_to_world,
-                ),
+                markers_visible_left: visible_markers(&scene, &to_world, &rig.left, left_to_world),
                 markers_visible_right: visible_markers(
-                    &scene.body,
+                    &scene,
                     &to_world,
                     &rig.right,
                     &right_to_world,
@@ -338,6 +339,7 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
             .collect(),
         shape,
         motion: (!motion.is_still()).then_some(motion.clone()),
+        props,
     };
     let truth_file = dir.join("ground_truth.json");
     truth.save(&truth_file).map_err(|e| io(&truth_file, e))?;
@@ -355,12 +357,14 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
 /// frame by a margin, and first along the ray to the face centre (all as the
 /// tissue moved).
 fn visible_markers(
-    body: &MovedShape,
+    scene: &PhantomScene,
     phantom_to_world: &Isometry3<f64>,
     camera: &crate::camera::CameraModel,
     camera_to_world: &Isometry3<f64>,
 ) -> Vec<u32> {
-    let eye = phantom_to_world.inverse() * Point3::from(camera_to_world.translation.vector);
+    let body = &scene.body;
+    let eye_world = Point3::from(camera_to_world.translation.vector);
+    let eye = phantom_to_world.inverse() * eye_world;
     let to_camera = camera_to_world.inverse() * phantom_to_world;
     let motion = &body.field;
     body.shape
@@ -377,10 +381,34 @@ fn visible_markers(
             let first = body
                 .intersect(&eye, &-towards_eye, 0.0)
                 .is_some_and(|h| h.surface == Surface::MarkerFace(m.id));
-            facing && in_frame && first
+            let to_face = phantom_to_world * (face - eye);
+            let unhidden = first_prop(&scene.props, &eye_world, &to_face.normalize(), 0.0)
+                .is_none_or(|h| h.1 >= to_face.norm());
+            facing && in_frame && first && unhidden
         })
         .map(|m| m.id)
         .collect()
+}
+
+/// The distractors and the tool the conditions ask for, world frame.
+fn scene_props(
+    c: &super::conditions::Conditions,
+    shape: &PhantomShape,
+    to_world: &Isometry3<f64>,
+) -> Vec<Prop> {
+    let ([ax, ay], radius, apex) = dome_extent(shape);
+    let mut props = Vec::new();
+    if c.distractors {
+        props.extend(distractors(
+            &(to_world * Point3::new(ax, ay, 0.0)),
+            radius,
+            MARKER_GREEN,
+        ));
+    }
+    if c.occluder {
+        props.push(occluder(&(to_world * Point3::new(ax, ay, apex)), 12.0));
+    }
+    props
 }
 
 /// `n` points uniformly distributed over the dome's skin (phantom frame), by

@@ -7,15 +7,19 @@
 
 mod camera_surface;
 mod conditions;
+mod defocus;
 mod dicom_series;
 mod generate;
+mod lighting;
 mod motion;
 mod moved_shape;
 mod mri;
 pub mod ops;
+mod props;
 mod render;
 mod rig;
 mod scenes;
+mod sensor;
 mod shape;
 mod texture;
 mod true_disparity;
@@ -23,10 +27,11 @@ mod truth;
 mod truth_input;
 
 pub use camera_surface::{SimulatedSurface, SurfaceSimParams, simulate_camera_surface};
-pub use conditions::Conditions;
+pub use conditions::{Conditions, ConditionsPreset};
 pub use generate::{Generated, PhantomConfig, PhantomSize, generate};
 pub use motion::{MotionField, MotionKind};
 pub use moved_shape::{MovedHit, MovedShape};
+pub use props::Prop;
 pub use rig::Rig;
 pub use scenes::MARKER_GREEN;
 pub use shape::{Lesion, Marker, Material, PhantomShape, ShapeParams, Triples};

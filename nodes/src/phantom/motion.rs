@@ -244,8 +244,9 @@ impl MotionField {
     }
 }
 
-/// The dome's axis on the table, its base radius and its apex height (mm).
-fn dome_extent(shape: &PhantomShape) -> ([f64; 2], f64, f64) {
+/// The dome's axis on the table, its base radius and its apex height (mm,
+/// phantom frame).
+pub(crate) fn dome_extent(shape: &PhantomShape) -> ([f64; 2], f64, f64) {
     let c = shape.ellipsoid_center_mm;
     let rot = shape.rotation();
     let axes = shape.semi_axes_mm;

@@ -1,20 +1,27 @@
 //! A ray-casting camera simulator: for every pixel, rays through the exact
 //! camera model (distortion included) into a [`Scene`], adaptively supersampled
-//! where the image has edges (anti-aliasing), then lens blur, natural vignetting
-//! (cos^4) and sensor noise, quantised to 8-bit RGB. Rows render in parallel with
-//! per-row random streams, so output is identical for any thread count.
+//! where the image has edges (anti-aliasing), then lens blur and defocus
+//! ([`super::defocus`]) and the sensor ([`super::sensor`]: vignetting,
+//! exposure, noise, mosaic), quantised to 8-bit RGB. Rows render in parallel
+//! with per-row random streams, so output is identical for any thread count.
 
+use super::defocus::{Lens, defocus, gaussian_blur};
+use super::sensor::{SensorParams, expose};
 use crate::camera::CameraModel;
 use nalgebra::{Isometry3, Point3, Vector3};
-use rand::{RngCore, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 /// Something rays can look at.
 pub trait Scene: Sync {
     /// Linear RGB (0..1) seen along the ray from `origin` along unit `dir`
-    /// (world frame, mm).
-    fn radiance(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> [f32; 3];
+    /// (world frame, mm), and the distance to what is seen, mm (infinite
+    /// for nothing).
+    fn radiance_at(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> ([f32; 3], f64);
+
+    /// Linear RGB (0..1) seen along the ray.
+    fn radiance(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> [f32; 3] {
+        self.radiance_at(origin, dir).0
+    }
 }
 
 /// How to turn radiance into an image.
@@ -22,14 +29,12 @@ pub trait Scene: Sync {
 pub struct RenderParams {
     /// Samples per axis in pixels that straddle an edge (1 = no anti-aliasing).
     pub supersample: usize,
-    /// Gaussian lens blur, px (0 = none).
+    /// Gaussian blur of a sharp lens and sensor, px (0 = none).
     pub blur_sigma_px: f64,
-    /// Sensor noise standard deviation, in units of the full scale (1.0 = 255).
-    pub noise_sigma: f64,
-    /// Apply cos^4 vignetting.
-    pub vignetting: bool,
-    /// Seed of the noise.
-    pub seed: u64,
+    /// Defocus of a lens focused at a distance; `None` = a pinhole (all sharp).
+    pub lens: Option<Lens>,
+    /// The sensor.
+    pub sensor: SensorParams,
 }
 
 /// Normalised ray coordinates on a coarse pixel grid, bilinearly interpolated:
@@ -111,13 +116,30 @@ fn render_with(
     let rotation = camera_to_world.rotation.to_rotation_matrix();
     let sample = |u: f64, v: f64| scene.radiance(&origin, &(rotation * rays.direction(u, v)));
 
-    // One sample per pixel centre, then supersampling where neighbours differ.
+    // One sample per pixel centre (with its depth along the optical axis when
+    // the lens defocuses), then supersampling where neighbours differ.
     let mut image = vec![[0.0f32; 3]; w * h];
-    image.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        for (x, px) in row.iter_mut().enumerate() {
-            *px = sample(x as f64, y as f64);
-        }
-    });
+    let mut depth = vec![0.0f32; if p.lens.is_some() { w * h } else { 0 }];
+    if p.lens.is_some() {
+        image
+            .par_chunks_mut(w)
+            .zip(depth.par_chunks_mut(w))
+            .enumerate()
+            .for_each(|(y, (row, depth_row))| {
+                for (x, (px, z)) in row.iter_mut().zip(depth_row.iter_mut()).enumerate() {
+                    let ray = rays.direction(x as f64, y as f64);
+                    let (rgb, t) = scene.radiance_at(&origin, &(rotation * ray));
+                    *px = rgb;
+                    *z = (t * ray.z) as f32;
+                }
+            });
+    } else {
+        image.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+            for (x, px) in row.iter_mut().enumerate() {
+                *px = sample(x as f64, y as f64);
+            }
+        });
+    }
     let n = p.supersample.max(1);
     if n > 1 {
         let offsets: Vec<f64> = (0..n).map(|s| (s as f64 + 0.5) / n as f64 - 0.5).collect();
@@ -149,89 +171,14 @@ fn render_with(
     if p.blur_sigma_px > 0.0 {
         image = gaussian_blur(&image, w, h, p.blur_sigma_px);
     }
-    let sigma = p.noise_sigma.max(0.0);
-    let mut out = vec![0u8; w * h * 3];
-    out.par_chunks_mut(w * 3).enumerate().for_each(|(y, row)| {
-        let mut rng =
-            ChaCha8Rng::seed_from_u64(p.seed.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ y as u64);
-        // Sensor noise: the sum of four 16-bit uniforms (Irwin-Hall), scaled to
-        // unit variance, is Gaussian to within 2 % in density for |z| < 3 and
-        // takes one random word per sample instead of a ziggurat draw.
-        let mut gaussian = || {
-            let r = rng.next_u64();
-            let sum: f64 = (0..4)
-                .map(|i| ((r >> (16 * i)) & 0xFFFF) as f64 / 65536.0)
-                .sum();
-            (sum - 2.0) * 3.0f64.sqrt() * sigma
-        };
-        for x in 0..w {
-            let fade = if p.vignetting {
-                let r2 = ((x as f64 - camera.cx) / camera.fx).powi(2)
-                    + ((y as f64 - camera.cy) / camera.fy).powi(2);
-                1.0 / (1.0 + r2).powi(2)
-            } else {
-                1.0
-            };
-            for ch in 0..3 {
-                let v = image[x + y * w][ch] as f64 * fade + gaussian();
-                // Truncation after +0.5 rounds (non-negative after the clamp), without
-                // a library call per sample.
-                row[x * 3 + ch] = ((v * 255.0).clamp(0.0, 255.0) + 0.5) as u8;
-            }
-        }
-    });
-    out
-}
-
-/// Separable Gaussian blur with clamped borders.
-fn gaussian_blur(image: &[[f32; 3]], w: usize, h: usize, sigma: f64) -> Vec<[f32; 3]> {
-    let radius = (3.0 * sigma).ceil() as isize;
-    let mut kernel: Vec<f32> = (-radius..=radius)
-        .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp() as f32)
-        .collect();
-    let total: f32 = kernel.iter().sum();
-    kernel.iter_mut().for_each(|k| *k /= total);
-    let pass = |src: &[[f32; 3]], horizontal: bool| -> Vec<[f32; 3]> {
-        let mut dst = vec![[0.0f32; 3]; w * h];
-        dst.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-            for (x, px) in row.iter_mut().enumerate() {
-                let mut acc = [0.0f32; 3];
-                for (k, &kw) in kernel.iter().enumerate() {
-                    let o = k as isize - radius;
-                    let (sx, sy) = if horizontal {
-                        ((x as isize + o).clamp(0, w as isize - 1) as usize, y)
-                    } else {
-                        (x, (y as isize + o).clamp(0, h as isize - 1) as usize)
-                    };
-                    let s = src[sx + sy * w];
-                    (0..3).for_each(|c| acc[c] += kw * s[c]);
-                }
-                *px = acc;
-            }
-        });
-        dst
-    };
-    pass(&pass(image, true), false)
-}
-
-/// Writes interleaved 8-bit RGB as a PNG (fast compression).
-pub fn write_png(
-    path: &std::path::Path,
-    rgb: &[u8],
-    width: usize,
-    height: usize,
-) -> std::io::Result<()> {
-    use image::ImageEncoder;
-    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
-    let file = std::io::BufWriter::new(std::fs::File::create(path)?);
-    PngEncoder::new_with_quality(file, CompressionType::Fast, FilterType::Adaptive)
-        .write_image(
-            rgb,
-            width as u32,
-            height as u32,
-            image::ExtendedColorType::Rgb8,
-        )
-        .map_err(std::io::Error::other)
+    if let Some(lens) = &p.lens {
+        let circles: Vec<f32> = depth
+            .par_iter()
+            .map(|&z| lens.blur_circle_px(z as f64) as f32)
+            .collect();
+        image = defocus(&image, w, h, &circles);
+    }
+    expose(&image, camera, &p.sensor)
 }
 
 #[cfg(test)]
@@ -242,13 +189,14 @@ mod tests {
     struct HalfPlane;
 
     impl Scene for HalfPlane {
-        fn radiance(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> [f32; 3] {
+        fn radiance_at(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> ([f32; 3], f64) {
             let t = (100.0 - origin.z) / dir.z;
-            if origin.x + t * dir.x < 0.0 {
+            let rgb = if origin.x + t * dir.x < 0.0 {
                 [1.0; 3]
             } else {
                 [0.0; 3]
-            }
+            };
+            (rgb, t)
         }
     }
 
@@ -266,12 +214,13 @@ mod tests {
 
     #[test]
     fn anti_aliasing_gives_fractional_edge_coverage() {
+        let mut sensor = SensorParams::ideal(0.0, 1);
+        sensor.vignetting = 0.0;
         let p = RenderParams {
             supersample: 8,
             blur_sigma_px: 0.0,
-            noise_sigma: 0.0,
-            vignetting: false,
-            seed: 1,
+            lens: None,
+            sensor,
         };
         let img = Renderer::new(&camera()).render(&Isometry3::identity(), &HalfPlane, &p);
         // The edge projects to u = cx = 31.7: pixel 31 spans [30.5, 31.5] (white),
@@ -281,6 +230,93 @@ mod tests {
         assert_eq!(at(31), 1.0);
         assert!((at(32) - 0.25).abs() < 0.02, "{}", at(32));
         assert_eq!(at(33), 0.0);
+    }
+
+    /// Everything left of world x = 0 on the plane z = `depth` is white.
+    struct FarHalfPlane {
+        depth: f64,
+    }
+
+    impl Scene for FarHalfPlane {
+        fn radiance_at(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> ([f32; 3], f64) {
+            let t = (self.depth - origin.z) / dir.z;
+            let white = origin.x + t * dir.x < 0.0;
+            ([if white { 0.8 } else { 0.1 }; 3], t)
+        }
+    }
+
+    #[test]
+    fn the_defocus_edge_spread_matches_the_blur_circle_formula() {
+        // The paper rig's lens (8 mm, 6 um pixels) at f/2 focused at 300 mm
+        // looking at an edge 600 mm away: c = A f |D1 - D2| / ((D1 - f) D2)
+        // = 4 * 8 * 300 / (292 * 600) mm = 9.13 px; a disc of diameter c
+        // spreads a line with sigma c / 4, and 8 x 8 anti-aliasing adds a
+        // pixel's box (variance 1/12).
+        let pixel_mm = 0.006;
+        let camera = CameraModel {
+            width: 160,
+            height: 40,
+            fx: 8.0 / pixel_mm,
+            fy: 8.0 / pixel_mm,
+            cx: 79.3,
+            cy: 19.5,
+            distortion: [0.0; 5],
+        };
+        let lens = Lens {
+            focal_mm: 8.0,
+            f_number: 2.0,
+            focus_mm: 300.0,
+            pixel_mm,
+        };
+        let mut sensor = SensorParams::ideal(0.0, 1);
+        sensor.vignetting = 0.0;
+        let p = RenderParams {
+            supersample: 8,
+            blur_sigma_px: 0.0,
+            lens: Some(lens),
+            sensor,
+        };
+        let scene = FarHalfPlane { depth: 600.0 };
+        // The line spread's standard deviation along the middle row, px.
+        let edge_sigma = |p: &RenderParams| {
+            let img = Renderer::new(&camera).render(&Isometry3::identity(), &scene, p);
+            let row: Vec<f64> = (0..camera.width)
+                .map(|x| img[(x + 20 * camera.width) * 3] as f64)
+                .collect();
+            let lsf: Vec<f64> = row.windows(2).map(|w| w[0] - w[1]).collect();
+            let total: f64 = lsf.iter().sum();
+            let mean = lsf
+                .iter()
+                .enumerate()
+                .map(|(i, v)| i as f64 * v)
+                .sum::<f64>()
+                / total;
+            let var = lsf
+                .iter()
+                .enumerate()
+                .map(|(i, v)| (i as f64 - mean).powi(2) * v)
+                .sum::<f64>()
+                / total;
+            var.sqrt()
+        };
+        let circle = 4.0 * 8.0 * 300.0 / (292.0 * 600.0) / pixel_mm;
+        assert!((lens.blur_circle_px(600.0) - circle).abs() < 1e-9);
+        let expected = ((circle / 4.0).powi(2) + 1.0 / 12.0).sqrt();
+        let measured = edge_sigma(&p);
+        assert!(
+            (measured / expected - 1.0).abs() < 0.1,
+            "edge spread sigma {measured:.3} px, the formula's {expected:.3} px"
+        );
+        // Focused on the edge: only anti-aliasing's pixel box is left.
+        let sharp = RenderParams {
+            lens: Some(Lens {
+                focus_mm: 600.0,
+                ..lens
+            }),
+            ..p
+        };
+        let in_focus = edge_sigma(&sharp);
+        assert!(in_focus < 0.45, "in focus: sigma {in_focus:.3} px");
     }
 
     #[test]
@@ -307,12 +343,19 @@ mod tests {
 
     #[test]
     fn output_is_deterministic_across_thread_counts() {
+        let mut sensor = SensorParams::ideal(0.01, 9);
+        sensor.bayer = true;
+        sensor.full_well_e = 5000.0;
         let p = RenderParams {
             supersample: 3,
             blur_sigma_px: 0.5,
-            noise_sigma: 0.01,
-            vignetting: true,
-            seed: 9,
+            lens: Some(Lens {
+                focal_mm: 1.0,
+                f_number: 1.0,
+                focus_mm: 50.0,
+                pixel_mm: 0.01,
+            }),
+            sensor,
         };
         let c = camera();
         let a = crate::on_threads(1, || {

@@ -13,6 +13,9 @@ pub const CONVERGENCE_MM: f64 = 400.0;
 /// Baseline between the camera centres, mm.
 pub const BASELINE_MM: f64 = 55.0;
 
+/// Pixel pitch of the paper rig's sensors, mm (6 um).
+pub const PIXEL_MM: f64 = 0.006;
+
 /// Both cameras and the rig extrinsics (left camera frame -> right camera frame).
 #[derive(Debug, Clone)]
 pub struct Rig {
@@ -28,7 +31,7 @@ impl Rig {
     /// Two slightly different 8 mm cameras with 6 um pixels and mild distortion,
     /// the right one verged by theta = atan(b / 400 mm) towards the left.
     pub fn paper_rig() -> Self {
-        let pixel_mm = 0.006;
+        let pixel_mm = PIXEL_MM;
         let left = CameraModel {
             width: 800,
             height: 600,

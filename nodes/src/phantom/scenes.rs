@@ -1,8 +1,10 @@
 //! What the simulated cameras look at: a printed chessboard in front of a
-//! cluttered wall (calibration), and the phantom on a cloth-covered table lit by
-//! an off-axis lamp (phantom views). Lambertian shading; no cast shadows.
+//! cluttered wall (calibration), and the phantom on a cloth-covered table
+//! under its [`Lighting`] (phantom views).
 
+use super::lighting::{Lighting, SurfacePoint};
 use super::moved_shape::MovedShape;
+use super::props::{Prop, first_prop};
 use super::render::Scene;
 use super::shape::Surface;
 use super::texture::{ValueNoise, fast_floor};
@@ -74,7 +76,7 @@ impl ChessboardScene {
 }
 
 impl Scene for ChessboardScene {
-    fn radiance(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> [f32; 3] {
+    fn radiance_at(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> ([f32; 3], f64) {
         let (r, t) = &self.world_to_board;
         let (o, d) = (r * origin.coords + t, r * dir);
         if d.z.abs() > 1e-12 {
@@ -88,7 +90,7 @@ impl Scene for ChessboardScene {
                             * (p.x / (self.board.cols as f64 * self.board.square_mm))
                                 .clamp(0.0, 1.0);
                     let v = a * light as f32;
-                    return [v, v, v * 0.97];
+                    return ([v, v, v * 0.97], t);
                 }
             }
         }
@@ -97,19 +99,24 @@ impl Scene for ChessboardScene {
         let p = origin + dir * t;
         let noise = ValueNoise::new(self.seed);
         let v = 0.3 + 0.35 * noise.at(&p, 1.0 / 40.0) as f32;
-        [v * 0.95, v, v * 1.05]
+        ([v * 0.95, v, v * 1.05], t)
     }
 }
 
-/// The phantom on a table (world plane z = 0), lit by a lamp from `light_dir`.
+/// The phantom on a table (world plane z = 0) under `lighting`.
 pub struct PhantomScene {
     /// The phantom as scanned, moved as the camera session sees it
     /// (textures move with the tissue).
     pub body: MovedShape,
     /// Pose of the phantom frame in the world (base on z = 0).
     pub phantom_to_world: Isometry3<f64>,
-    /// Unit direction towards the lamp, world frame.
-    pub light_dir: Vector3<f64>,
+    /// The lamps, ambient light, highlights and shadows.
+    pub lighting: Lighting,
+    /// Peak-to-peak contrast of the skin's fine texture, as a fraction of
+    /// its mean brightness (0.6 for the ideal phantom, 0 for a uniform skin).
+    pub skin_texture: f64,
+    /// Things beside the phantom (world frame).
+    pub props: Vec<Prop>,
     /// Seed of the skin and cloth textures.
     pub seed: u64,
 }
@@ -122,15 +129,42 @@ const PLASTIC: [f32; 3] = [0.80, 0.80, 0.78];
 const CLOTH: [f32; 3] = [0.22, 0.25, 0.32];
 
 impl PhantomScene {
-    fn shade(&self, albedo: [f32; 3], texture: f64, normal: &Vector3<f64>) -> [f32; 3] {
-        let diffuse = normal.dot(&self.light_dir).max(0.0);
-        let light = (0.35 + 0.65 * diffuse) * texture;
-        albedo.map(|a| (a as f64 * light) as f32)
+    /// Whether the lamp along unit `l` (world), `distance` mm away, lights
+    /// world point `p`: nothing of the phantom lies between (the table
+    /// casts no shadow).
+    fn lit(&self, p: &Point3<f64>, l: &Vector3<f64>, distance: f64) -> bool {
+        let (o, d) = (
+            self.phantom_to_world.inverse_transform_point(p),
+            self.phantom_to_world.inverse_transform_vector(l),
+        );
+        // Started a hair off the surface, so it does not find itself.
+        self.body
+            .intersect(&(o + d * 1e-3), &d, 0.0)
+            .is_none_or(|h| h.t >= distance)
+            && first_prop(&self.props, &(p + l * 1e-3), l, 0.0).is_none_or(|h| h.1 >= distance)
+    }
+
+    fn shade(
+        &self,
+        albedo: [f32; 3],
+        texture: f64,
+        (point, normal, dir): (Point3<f64>, Vector3<f64>, &Vector3<f64>),
+        glossy: bool,
+    ) -> [f32; 3] {
+        let at = SurfacePoint {
+            point,
+            normal,
+            to_eye: -dir,
+        };
+        self.lighting
+            .shade(albedo, texture, &at, glossy, |l, distance| {
+                self.lit(&point, l, distance)
+            })
     }
 }
 
 impl Scene for PhantomScene {
-    fn radiance(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> [f32; 3] {
+    fn radiance_at(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> ([f32; 3], f64) {
         let (o, d) = (
             self.phantom_to_world.inverse_transform_point(origin),
             self.phantom_to_world.inverse_transform_vector(dir),
@@ -141,25 +175,38 @@ impl Scene for PhantomScene {
             f64::INFINITY
         };
         let noise = ValueNoise::new(self.seed);
-        if let Some(hit) = self.body.intersect(&o, &d, 1e-6).filter(|h| h.t < table_t) {
+        let body = self.body.intersect(&o, &d, 1e-6).filter(|h| h.t < table_t);
+        if let Some((i, t, normal)) = first_prop(&self.props, origin, dir, 1e-6)
+            .filter(|h| h.1 < table_t && body.is_none_or(|b| h.1 < b.t))
+        {
+            let prop = &self.props[i];
+            let at = (origin + dir * t, normal, dir);
+            return (self.shade(prop.colour, 1.0, at, prop.glossy), t);
+        }
+        if let Some(hit) = body {
             let p = hit.scanned;
             let normal = self.phantom_to_world * hit.normal;
-            return match hit.surface {
+            let at = (origin + dir * hit.t, normal, dir);
+            let rgb = match hit.surface {
                 Surface::Skin => {
-                    // Fine random texture: 0.5 mm to 2 mm features, strong contrast.
+                    // Fine random texture: 0.5 mm to 2 mm features, its
+                    // contrast as asked (0.55 + 0.6 t for the ideal phantom).
                     let t = noise.fractal(&p, 1.0 / 1.6, 3);
-                    self.shade(SKIN, 0.55 + 0.6 * t, &normal)
+                    let k = self.skin_texture;
+                    self.shade(SKIN, 0.55 + (0.6 - k) / 2.0 + k * t, at, true)
                 }
-                Surface::MarkerFace(_) => self.shade(MARKER_GREEN, 1.0, &normal),
-                Surface::MarkerSide => self.shade(PLASTIC, 1.0, &normal),
+                Surface::MarkerFace(_) => self.shade(MARKER_GREEN, 1.0, at, true),
+                Surface::MarkerSide => self.shade(PLASTIC, 1.0, at, true),
             };
+            return (rgb, hit.t);
         }
         if table_t.is_finite() {
             let p = origin + dir * table_t;
             let t = noise.fractal(&p, 1.0 / 3.0, 2);
-            return self.shade(CLOTH, 0.6 + 0.5 * t, &Vector3::z());
+            let rgb = self.shade(CLOTH, 0.6 + 0.5 * t, (p, Vector3::z(), dir), false);
+            return (rgb, table_t);
         }
-        [0.05, 0.05, 0.06]
+        ([0.05, 0.05, 0.06], f64::INFINITY)
     }
 }
 

@@ -13,6 +13,7 @@
 //! the rectification's row error at that pixel.
 
 use super::moved_shape::MovedShape;
+use super::props::{Prop, first_prop};
 use super::shape::Surface;
 use super::truth::GroundTruth;
 use crate::calib::StereoRectification;
@@ -35,6 +36,8 @@ pub enum SceneLabel {
     MarkerSide = 3,
     /// The coloured outer face of a marker.
     MarkerFace = 4,
+    /// Something beside the phantom: a distractor or a tool.
+    Prop = 5,
 }
 
 /// The scene and the *true* cameras of one view pair.
@@ -43,6 +46,8 @@ pub struct ViewScene<'a> {
     /// The phantom in its own frame, as it moved between the scan and this
     /// session.
     pub body: MovedShape,
+    /// Things beside the phantom, world frame.
+    pub props: Vec<Prop>,
     /// Phantom frame -> world (mm).
     pub phantom_to_world: Isometry3<f64>,
     /// The true left camera.
@@ -66,6 +71,7 @@ impl<'a> ViewScene<'a> {
         })?;
         Ok(ViewScene {
             body: MovedShape::new(truth.shape.clone(), truth.motion_field()),
+            props: truth.props.clone(),
             phantom_to_world: isometry_from_matrix(&truth.phantom_to_world),
             left: &truth.rig.left,
             right: &truth.rig.right,
@@ -87,7 +93,13 @@ impl<'a> ViewScene<'a> {
             self.phantom_to_world.inverse_transform_point(origin),
             self.phantom_to_world.inverse_transform_vector(dir),
         );
-        if let Some(hit) = self.body.intersect(&o, &d, 1e-6).filter(|h| h.t < table_t) {
+        let body = self.body.intersect(&o, &d, 1e-6).filter(|h| h.t < table_t);
+        if let Some((_, t, _)) = first_prop(&self.props, origin, dir, 1e-6)
+            .filter(|h| h.1 < table_t && body.is_none_or(|b| h.1 < b.t))
+        {
+            return Some((t, SceneLabel::Prop));
+        }
+        if let Some(hit) = body {
             let label = match hit.surface {
                 Surface::Skin => SceneLabel::Skin,
                 Surface::MarkerFace(_) => SceneLabel::MarkerFace,
@@ -246,10 +258,12 @@ pub fn true_disparity(
 mod tests {
     use super::*;
     use crate::calib::{rectify, remap};
+    use crate::phantom::lighting::Lighting;
     use crate::phantom::motion::MotionField;
     use crate::phantom::render::{RenderParams, Renderer};
     use crate::phantom::rig::{Rig, view_poses};
     use crate::phantom::scenes::PhantomScene;
+    use crate::phantom::sensor::SensorParams;
     use crate::phantom::shape::{PhantomShape, ShapeParams};
     use rand::SeedableRng;
 
@@ -301,15 +315,18 @@ mod tests {
             let render = PhantomScene {
                 body: MovedShape::new(shape.clone(), MotionField::still()),
                 phantom_to_world: to_world,
-                light_dir: Vector3::new(0.45, -0.35, 0.82).normalize(),
+                lighting: Lighting::ideal(Vector3::new(0.45, -0.35, 0.82).normalize()),
+                skin_texture: 0.6,
+                props: Vec::new(),
                 seed: 11,
             };
+            let mut sensor = SensorParams::ideal(0.0, 1);
+            sensor.vignetting = 0.0;
             let params = RenderParams {
                 supersample: 1,
                 blur_sigma_px: 0.0,
-                noise_sigma: 0.0,
-                vignetting: false,
-                seed: 1,
+                lens: None,
+                sensor,
             };
             let grey = |rgb: Vec<u8>| -> Vec<u8> { rgb.chunks(3).map(|c| c[1]).collect() };
             let left = grey(Renderer::new(&rig.left).render(&left_to_world, &render, &params));
@@ -328,6 +345,7 @@ mod tests {
         fn scene(&self) -> ViewScene<'_> {
             ViewScene {
                 body: MovedShape::new(self.shape.clone(), MotionField::still()),
+                props: Vec::new(),
                 phantom_to_world: self.to_world,
                 left: &self.rig.left,
                 right: &self.rig.right,
@@ -476,6 +494,7 @@ mod tests {
             crate::camera::look_at(&eye, &Point3::new(15.0, 0.0, 60.0), &Vector3::z());
         let scene = ViewScene {
             body: MovedShape::new(shape.clone(), MotionField::still()),
+            props: Vec::new(),
             phantom_to_world: to_world,
             left: &rig.left,
             right: &rig.right,
@@ -508,6 +527,7 @@ mod tests {
         let (shape, to_world) = phantom();
         let scene = ViewScene {
             body: MovedShape::new(shape.clone(), MotionField::still()),
+            props: Vec::new(),
             phantom_to_world: to_world,
             left: &rig.left,
             right: &rig.right,

@@ -6,6 +6,7 @@
 //! row-major 4x4 `a_to_b` mapping points in frame a to frame b.
 
 use super::motion::MotionField;
+use super::props::Prop;
 use super::shape::PhantomShape;
 use crate::camera::CameraModel;
 use serde::{Deserialize, Serialize};
@@ -57,6 +58,10 @@ pub struct GroundTruth {
     /// when scanned (`mri_to_world` applied to the MRI positions).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub motion: Option<MotionField>,
+    /// Things beside the phantom in the camera session (distractors, a
+    /// tool), world frame.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub props: Vec<Prop>,
 }
 
 /// The MRI series geometry and contrast.

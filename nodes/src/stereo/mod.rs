@@ -30,7 +30,7 @@ pub use dense::{
 };
 pub use features::{
     FeatureMatch, MatchParams, RangeParams, disparity_range, features_from_table,
-    features_to_table, match_features, percentile,
+    features_to_table, match_features, percentile, supported_disparities,
 };
 pub use markers::{
     Blob, BlobParams, GREY_CHROMA_LEVELS, MomentEllipse, PairParams, StereoMarker, StereoMarkers,

@@ -46,9 +46,11 @@ pub struct GenerateInputs;
 pub struct GenerateOutputs {
     /// Folder of DICOM slices (shuffled file order)
     pub mri_dir: PathValue,
-    /// Folder of chessboard pairs left_NN.png / right_NN.png
+    /// Folder of chessboard pairs left_NN / right_NN (.png, or .jpg with
+    /// jpeg_quality)
     pub calib_dir: PathValue,
-    /// Folder of phantom pairs left_NN.png / right_NN.png
+    /// Folder of phantom pairs left_NN / right_NN (.png, or .jpg with
+    /// jpeg_quality)
     pub views_dir: PathValue,
     /// ground_truth.json (schema fusegraph-phantom/1)
     pub truth: PathValue,
@@ -73,6 +75,10 @@ impl Generate {
 impl RunOp for Generate {
     type Inputs = GenerateInputs;
     type Outputs = GenerateOutputs;
+
+    fn check(&self, _: Wired) -> Vec<(&'static str, String)> {
+        self.conditions.resolved().problems()
+    }
 
     fn run(&self, _: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
         let dir = ctx.work_dir()?;

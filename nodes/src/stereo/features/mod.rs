@@ -36,7 +36,7 @@ mod table;
 pub use fast::{FastParams, detect_fast};
 pub use integral::Integral;
 pub use matching::{FeatureMatch, MatchParams, match_features};
-pub use range::{RangeParams, disparity_range, percentile};
+pub use range::{RangeParams, disparity_range, percentile, supported_disparities};
 pub use surf::{HessianParams, detect_hessian};
 pub use table::{features_from_table, features_to_table};
 

@@ -1,13 +1,29 @@
 //! `stereo.disparity_range`: the dense matchers' search range from matches.
 
-use crate::stereo::{RangeParams, disparity_range};
+use crate::stereo::{RangeParams, disparity_range, supported_disparities};
 use fusegraph_engine::typed::prelude::*;
-use fusegraph_engine::value::Matches;
+use fusegraph_engine::value::{Matches, Rectification};
 
-/// Disparity search range from matches: percentiles widened by a margin
+/// Disparity search range from matches: those nearby matches agree with (and
+/// the rig's geometry allows), their percentiles widened by a margin
 #[derive(Debug, Clone, PartialEq, Op)]
-#[op(name = "stereo.disparity_range", version = 1)]
+#[op(name = "stereo.disparity_range", version = 2)]
 pub struct DisparityRange {
+    /// A match counts when at least `min_support` others within this radius
+    /// (left image) agree on its disparity (0 = every match counts)
+    #[param(default = 32.0, unit = "px", min = 0.0)]
+    pub support_radius_px: f64,
+    /// Largest disparity difference of agreeing matches
+    #[param(default = 2.0, unit = "px", min = 0.0)]
+    pub support_tolerance_px: f64,
+    /// Agreeing neighbours a match needs
+    #[param(default = 2, min = 1)]
+    pub min_support: usize,
+    /// Without a `rectification` input: the pair is rectified so a point at
+    /// infinity has disparity 0 (Middlebury, most stereo cameras' rectified
+    /// output), so negative disparities are impossible
+    #[param(default = false)]
+    pub zero_at_infinity: bool,
     /// Lower percentile of matched disparities
     #[param(default = 2.0, unit = "%", min = 0.0, max = 100.0)]
     pub low_percentile: f64,
@@ -25,11 +41,15 @@ pub struct DisparityRange {
     pub min_matches: usize,
 }
 
-/// The input of `stereo.disparity_range`.
+/// The inputs of `stereo.disparity_range`.
 #[derive(Inputs)]
 pub struct DisparityRangeInputs {
     /// Matches of a rectified pair
     pub matches: Arc<Matches>,
+    /// The pair's rectification: a point in front of the rig has at least
+    /// the disparity of a point at infinity (cx1 - cx2), so smaller matched
+    /// disparities are impossible and the range starts there at the least
+    pub rectification: Option<Arc<Rectification>>,
 }
 
 /// The outputs of `stereo.disparity_range`.
@@ -60,17 +80,66 @@ impl RunOp for DisparityRange {
 
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
         let matches = inputs.matches;
-        let disparities: Vec<f32> = matches
+        let located: Vec<(f32, f32, f32)> = matches
             .left_px
             .chunks(2)
             .zip(matches.right_px.chunks(2))
-            .map(|(l, r)| l[0] - r[0])
+            .map(|(l, r)| (l[0], l[1], l[0] - r[0]))
             .collect();
-        let (min, max) = disparity_range(&disparities, &self.params())
+        // Disparity of a point at infinity, less a pixel for rounding.
+        let at_infinity = inputs
+            .rectification
+            .as_deref()
+            .map(|r| r.p1[0][2] - r.p2[0][2])
+            .or(self.zero_at_infinity.then_some(0.0));
+        let lowest = at_infinity.map(|d| d - 1.0);
+        let disparities = supported_disparities(
+            &located,
+            self.support_radius_px,
+            self.support_tolerance_px,
+            self.min_support,
+            lowest,
+        );
+        let dropped = located.len() - disparities.len();
+        if dropped > 0 {
+            ctx.note(format!(
+                "{dropped} of {} matches left out: no {} neighbours within {} px agree on their \
+                 disparity{}",
+                located.len(),
+                self.min_support,
+                self.support_radius_px,
+                lowest.map_or(String::new(), |l| format!(
+                    ", or it is below {l:.1} px (a point behind the rig)"
+                ))
+            ));
+        }
+        let raw: Vec<f32> = located.iter().map(|m| m.2).collect();
+        if raw.iter().filter(|d| d.is_finite()).count() < self.min_matches {
+            // Too few before any is left out: the range's own error says so.
+            disparity_range(&raw, &self.params())
+                .map_err(|e| OpError::invalid(format!("input `matches`: {e}")))?;
+        }
+        if disparities.len() < self.min_matches {
+            return Err(OpError::invalid(format!(
+                "input `matches`: only {} of {} matches have {} neighbours within {} px agreeing \
+                 on their disparity (min_matches = {}): too few to bound the disparity range; \
+                 set the dense matcher's range by its parameters instead, or lower min_support",
+                disparities.len(),
+                located.len(),
+                self.min_support,
+                self.support_radius_px,
+                self.min_matches
+            )));
+        }
+        let (mut min, max) = disparity_range(&disparities, &self.params())
             .map_err(|e| OpError::invalid(format!("input `matches`: {e}")))?;
+        if let Some(low) = lowest {
+            min = min.max(low.floor() as i32).min(max);
+        }
         ctx.metric("min_px", min as f64);
         ctx.metric("max_px", max as f64);
-        ctx.metric("matches", disparities.len() as f64);
+        ctx.metric("matches", located.len() as f64);
+        ctx.metric("matches_used", disparities.len() as f64);
         Ok(DisparityRangeOutputs {
             min_disparity: min as f64,
             max_disparity: max as f64,
@@ -94,6 +163,7 @@ mod tests {
         let m = Matches::new(vec![10.0f32, 5.0], vec![2.0f32, 5.0], vec![0.1f32]).unwrap();
         let inputs = DisparityRangeInputs {
             matches: Arc::new(m),
+            rectification: None,
         };
         let op: DisparityRange = defaults();
         let err = op.run(inputs, &mut ctx()).err().unwrap().to_string();

@@ -111,6 +111,7 @@ mod tests {
             .run(
                 DisparityRangeInputs {
                     matches: Arc::new(matched.matches),
+                    rectification: None,
                 },
                 &mut c,
             )

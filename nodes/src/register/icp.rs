@@ -3,6 +3,12 @@
 //! correspondence distance, trimming and robust kernels, optionally over a
 //! coarse-to-fine list of voxel sizes.
 //!
+//! Landmarks ([`Anchors`], e.g. markers matched between the clouds) may join
+//! the surface pairs as point-to-point terms with a weight: a nearly
+//! symmetric surface (a dome) pins its tangential motion weakly, and a surface
+//! reconstructed from weak texture pins it wrongly, where three landmarks pin
+//! it outright.
+//!
 //! On smooth surfaces point-to-point has a small basin: on the tests' bumpy
 //! ellipsoid it settles several degrees off from a 5-10 deg start, as pairs slide
 //! along the surface, where point-to-plane converges; prefer point-to-plane for
@@ -105,6 +111,27 @@ pub struct IcpResult {
     pub trace: Vec<IcpStep>,
 }
 
+/// Landmark pairs that join the surface pairs: `source[k]` (source frame)
+/// belongs at `target[k]` (target frame).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Anchors {
+    /// Landmarks in the source frame, mm.
+    pub source: Vec<Point3<f64>>,
+    /// The same landmarks in the target frame, mm.
+    pub target: Vec<Point3<f64>>,
+    /// The weight of all landmarks together relative to all surface pairs of
+    /// an iteration (1: as much as the whole surface).
+    pub weight: f64,
+}
+
+impl Anchors {
+    /// Each landmark pair's weight when `surface_weight` is the surface
+    /// pairs' total.
+    fn each(&self, surface_weight: f64) -> f64 {
+        self.weight * surface_weight / self.source.len().max(1) as f64
+    }
+}
+
 /// Pairs per partial sum of the point-to-plane normal equations.
 const REDUCTION_CHUNK: usize = 4096;
 
@@ -148,6 +175,30 @@ pub fn icp(
     init: &Isometry3<f64>,
     p: &IcpParams,
 ) -> Result<IcpResult, String> {
+    icp_anchored(source, target, target_normals, tree, init, p, None)
+}
+
+/// [`icp`] with landmark pairs joining the surface pairs (see [`Anchors`]);
+/// `None` is plain ICP.
+pub fn icp_anchored(
+    source: &[Point3<f64>],
+    target: &[Point3<f64>],
+    target_normals: Option<&[Vector3<f64>]>,
+    tree: &Nearest,
+    init: &Isometry3<f64>,
+    p: &IcpParams,
+    anchors: Option<&Anchors>,
+) -> Result<IcpResult, String> {
+    if let Some(a) = anchors
+        && a.source.len() != a.target.len()
+    {
+        return Err(format!(
+            "{} source landmarks and {} target landmarks: they pair one to one",
+            a.source.len(),
+            a.target.len()
+        ));
+    }
+    let anchors = anchors.filter(|a| !a.source.is_empty() && a.weight > 0.0);
     if p.method == IcpMethod::PointToPlane && target_normals.is_none_or(|n| n.len() != target.len())
     {
         return Err("point-to-plane ICP needs a normal for every target point".into());
@@ -204,9 +255,17 @@ pub fn icp(
             previous = Some((rmse, fitness));
             let step = match p.method {
                 IcpMethod::PointToPoint => {
-                    let (a, b): (Vec<_>, Vec<_>) =
+                    let (mut a, mut b): (Vec<_>, Vec<_>) =
                         pairs.iter().map(|&(i, j, _)| (moved[i], target[j])).unzip();
-                    let w: Vec<f64> = pairs.iter().map(|q| p.kernel.weight(q.2)).collect();
+                    let mut w: Vec<f64> = pairs.iter().map(|q| p.kernel.weight(q.2)).collect();
+                    if let Some(anchors) = anchors {
+                        let each = anchors.each(w.iter().sum());
+                        for (s, t) in anchors.source.iter().zip(&anchors.target) {
+                            a.push(transform * s);
+                            b.push(*t);
+                            w.push(each);
+                        }
+                    }
                     umeyama(&a, &b, Some(&w), false).map(|s| s.isometry())
                 }
                 IcpMethod::PointToPlane => {
@@ -230,11 +289,34 @@ pub fn icp(
                             )
                         })
                         .collect();
-                    let (ata, atb) = partials
+                    let (mut ata, mut atb) = partials
                         .iter()
                         .fold((Matrix6::zeros(), Vector6::zeros()), |(a, b), (pa, pb)| {
                             (a + pa, b + pb)
                         });
+                    if let Some(anchors) = anchors {
+                        // Each landmark: three rows, one per axis, of the
+                        // linearised point-to-point residual m + w x m + t - q.
+                        let surface_weight: f64 = pairs
+                            .iter()
+                            .map(|&(i, j, _)| {
+                                let r = normals[j].dot(&(moved[i] - target[j]));
+                                p.kernel.weight(r)
+                            })
+                            .sum();
+                        let each = anchors.each(surface_weight);
+                        for (s, q) in anchors.source.iter().zip(&anchors.target) {
+                            let m = transform * s;
+                            let r = m - q;
+                            for axis in 0..3 {
+                                let e = Vector3::ith(axis, 1.0);
+                                let c = m.coords.cross(&e);
+                                let row = Vector6::new(c.x, c.y, c.z, e.x, e.y, e.z);
+                                ata += row * row.transpose() * each;
+                                atb += row * (r[axis] * each);
+                            }
+                        }
+                    }
                     ata.cholesky().map(|c| {
                         let x = c.solve(&(-atb));
                         Isometry3::from_parts(
@@ -313,6 +395,80 @@ mod tests {
             r.iterations
         );
         assert!(r.rmse_mm < 0.2, "{}", r.rmse_mm);
+    }
+
+    #[test]
+    fn landmarks_pin_the_turn_a_symmetric_surface_cannot() {
+        // A spherical cap: turning it about its axis moves no point off the
+        // surface, so surface pairs alone leave that turn where it starts.
+        // Three landmarks on the cap fix it.
+        let cap: Vec<Point3<f64>> = (0..4000)
+            .map(|k| {
+                let (u, v) = ((k % 80) as f64 / 80.0, (k / 80) as f64 / 50.0);
+                let (theta, phi) = (u * std::f64::consts::TAU, 0.15 + 0.9 * v);
+                Point3::new(
+                    60.0 * phi.sin() * theta.cos(),
+                    60.0 * phi.sin() * theta.sin(),
+                    60.0 * phi.cos(),
+                )
+            })
+            .filter(|p| p.z > 10.0)
+            .collect();
+        let normals: Vec<Vector3<f64>> = cap.iter().map(|p| p.coords.normalize()).collect();
+        let tree = Nearest::new(&cap).unwrap();
+        let truth = Isometry3::new(Vector3::zeros(), Vector3::new(0.0, 0.0, 0.2));
+        let source: Vec<Point3<f64>> = cap.iter().map(|p| truth.inverse() * p).collect();
+        let landmarks = [cap[7], cap[1500], cap[2900]];
+        let anchors = Anchors {
+            source: landmarks.iter().map(|p| truth.inverse() * p).collect(),
+            target: landmarks.to_vec(),
+            weight: 1.0,
+        };
+        let params = IcpParams {
+            method: IcpMethod::PointToPlane,
+            max_distance_mm: 20.0,
+            trim_ratio: 1.0,
+            kernel: Kernel::None,
+            max_iterations: 100,
+            tolerance: 1e-12,
+            voxel_sizes_mm: vec![],
+        };
+        let run = |anchors: Option<&Anchors>, method: IcpMethod| {
+            let p = IcpParams {
+                method,
+                ..params.clone()
+            };
+            let init = Isometry3::identity();
+            icp_anchored(&source, &cap, Some(&normals), &tree, &init, &p, anchors)
+                .unwrap()
+                .transform
+                .rotation
+                .angle_to(&truth.rotation)
+                .to_degrees()
+        };
+        assert!(
+            run(None, IcpMethod::PointToPlane) > 10.0,
+            "the surface alone cannot"
+        );
+        for method in [IcpMethod::PointToPlane, IcpMethod::PointToPoint] {
+            let err = run(Some(&anchors), method);
+            assert!(err < 0.01, "{method:?}: {err} deg off");
+        }
+        let lopsided = Anchors {
+            target: landmarks[..2].to_vec(),
+            ..anchors.clone()
+        };
+        let init = Isometry3::identity();
+        let e = icp_anchored(
+            &source,
+            &cap,
+            Some(&normals),
+            &tree,
+            &init,
+            &params,
+            Some(&lopsided),
+        );
+        assert!(e.unwrap_err().contains("pair one to one"));
     }
 
     #[test]

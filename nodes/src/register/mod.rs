@@ -11,10 +11,11 @@ pub mod ops;
 mod procrustes;
 mod targets;
 
-pub use icp::{IcpMethod, IcpParams, IcpResult, IcpStep, Kernel, icp};
+pub use icp::{Anchors, IcpMethod, IcpParams, IcpResult, IcpStep, Kernel, icp, icp_anchored};
 pub use match_markers::{MarkerMatch, match_markers};
 pub use multiview::{
-    MergedMarker, Multiview, View, merge_markers, poses_from_markers, register_views,
+    MarkerAnchoring, MergedMarker, Multiview, View, merge_markers, poses_from_markers,
+    register_views,
 };
 pub use procrustes::{Similarity, umeyama};
 pub use targets::map_targets;

@@ -3,8 +3,14 @@
 //! chained from the first view, then a global adjustment in which every view is
 //! registered in turn onto all the others together, for a few rounds, so the
 //! loop's error is spread over every view instead of piling up at the end.
+//!
+//! Markers seen in two views anchor both stages ([`super::icp::Anchors`]):
+//! a pair of views that share 3 markers starts from the markers' fit, not the
+//! robot's rough poses, and surface pairs cannot slide the views along the
+//! nearly symmetric dome (which weak skin texture or noise otherwise lets
+//! them do: the merged markers then come apart).
 
-use super::icp::{IcpParams, icp};
+use super::icp::{Anchors, IcpParams, icp, icp_anchored};
 use crate::cloud::Nearest;
 use nalgebra::{Isometry3, Point3, Vector3};
 
@@ -35,12 +41,90 @@ fn to_world(view: &View, pose: &Isometry3<f64>) -> (Vec<Point3<f64>>, Vec<Vector
     )
 }
 
-/// Registers `views` given rough view -> world poses.
+/// How markers seen in several views take part in [`register_views`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct MarkerAnchoring {
+    /// Each view's markers in its own frame (empty: none seen).
+    pub markers: Vec<Vec<Point3<f64>>>,
+    /// Tolerance of marker matching between views (distances between
+    /// markers), and of a sighting's distance to another view's marker in
+    /// the adjustment, mm.
+    pub tolerance_mm: f64,
+    /// Weight of a view's markers together against its surface pairs.
+    pub weight: f64,
+}
+
+/// The markers view `j` shares with view `i`, matched by their distances to
+/// each other (no pose needed), when at least 3 fit within the tolerance
+/// and their fit is not far from `rough` (j -> i; a symmetric layout can
+/// match itself turned): the anchors and the fit.
+fn shared_markers(
+    anchoring: &MarkerAnchoring,
+    j: usize,
+    i: usize,
+    rough: &Isometry3<f64>,
+) -> Option<(Anchors, Isometry3<f64>)> {
+    let (mj, mi) = (anchoring.markers.get(j)?, anchoring.markers.get(i)?);
+    let m = super::match_markers(mj, mi, anchoring.tolerance_mm, false)?;
+    let fit = Isometry3::from_parts(
+        m.transform.translation.into(),
+        nalgebra::UnitQuaternion::from_rotation_matrix(&m.transform.rotation),
+    );
+    // The robot's poses are off by millimetres and a few degrees, not more.
+    let centre = mj.iter().map(|p| p.coords).sum::<Vector3<f64>>() / mj.len() as f64;
+    let disagreement = (fit * Point3::from(centre) - rough * Point3::from(centre)).norm();
+    (m.pairs.len() >= 3 && disagreement < 50.0).then(|| {
+        let anchors = Anchors {
+            source: m.pairs.iter().map(|&(a, _)| mj[a]).collect(),
+            target: m.pairs.iter().map(|&(_, b)| mi[b]).collect(),
+            weight: anchoring.weight,
+        };
+        (anchors, fit)
+    })
+}
+
+/// View `i`'s markers paired with the nearest marker of any other view
+/// (world frame, under the current poses) within the tolerance.
+fn adjustment_anchors(
+    anchoring: &MarkerAnchoring,
+    i: usize,
+    poses: &[Isometry3<f64>],
+) -> Option<Anchors> {
+    let own = anchoring.markers.get(i)?;
+    let others: Vec<Point3<f64>> = anchoring
+        .markers
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| *k != i)
+        .flat_map(|(k, m)| m.iter().map(move |p| poses[k] * p))
+        .collect();
+    let (mut source, mut target) = (Vec::new(), Vec::new());
+    for p in own {
+        let world = poses[i] * p;
+        if let Some(q) = others
+            .iter()
+            .filter(|q| (*q - world).norm() < anchoring.tolerance_mm)
+            .min_by(|a, b| (*a - world).norm().total_cmp(&(*b - world).norm()))
+        {
+            source.push(*p);
+            target.push(*q);
+        }
+    }
+    (source.len() >= 3).then_some(Anchors {
+        source,
+        target,
+        weight: anchoring.weight,
+    })
+}
+
+/// Registers `views` given rough view -> world poses, anchored by the
+/// markers they share when `anchoring` gives them.
 pub fn register_views(
     views: &[View],
     rough: &[Isometry3<f64>],
     p: &IcpParams,
     rounds: usize,
+    anchoring: Option<&MarkerAnchoring>,
 ) -> Result<Multiview, String> {
     let n = views.len();
     if n < 2 || rough.len() != n {
@@ -55,16 +139,38 @@ pub fn register_views(
     for i in 0..n {
         let j = (i + 1) % n;
         let tree = Nearest::new(&views[i].points).ok_or_else(|| format!("view {i} is empty"))?;
-        let init = rough[i].inverse() * rough[j];
-        let r = icp(
-            &views[j].points,
-            &views[i].points,
-            Some(&views[i].normals),
-            &tree,
-            &init,
-            p,
-        )
-        .map_err(|e| format!("view {j} onto view {i}: {e}"))?;
+        let rough_relative = rough[i].inverse() * rough[j];
+        let shared = anchoring.and_then(|a| shared_markers(a, j, i, &rough_relative));
+        // From the shared markers' fit, anchored by them; if that fails (a
+        // marker found wrongly), from the rough poses on the surfaces alone.
+        let anchored = shared.as_ref().map(|(anchors, fit)| {
+            icp_anchored(
+                &views[j].points,
+                &views[i].points,
+                Some(&views[i].normals),
+                &tree,
+                fit,
+                p,
+                Some(anchors),
+            )
+        });
+        let r = match anchored {
+            Some(Ok(r)) => r,
+            first => icp(
+                &views[j].points,
+                &views[i].points,
+                Some(&views[i].normals),
+                &tree,
+                &rough_relative,
+                p,
+            )
+            .map_err(|e| match first {
+                Some(Err(a)) => {
+                    format!("view {j} onto view {i}: from the shared markers: {a}; from the rough poses: {e}")
+                }
+                _ => format!("view {j} onto view {i}: {e}"),
+            })?,
+        };
         relative.push(r.transform);
         pairwise_rmse_mm.push(r.rmse_mm);
     }
@@ -85,8 +191,17 @@ pub fn register_views(
                 nrm.extend(b);
             }
             let tree = Nearest::new(&pts).ok_or("no points")?;
-            let r = icp(&views[i].points, &pts, Some(&nrm), &tree, &poses[i], p)
-                .map_err(|e| format!("view {i} onto the others: {e}"))?;
+            let anchors = anchoring.and_then(|a| adjustment_anchors(a, i, &poses));
+            let r = icp_anchored(
+                &views[i].points,
+                &pts,
+                Some(&nrm),
+                &tree,
+                &poses[i],
+                p,
+                anchors.as_ref(),
+            )
+            .map_err(|e| format!("view {i} onto the others: {e}"))?;
             poses[i] = r.transform;
             view_rmse_mm[i] = r.rmse_mm;
         }

@@ -4,7 +4,8 @@ use crate::cloud::convert::{cloud_normals, cloud_points, make_cloud};
 use crate::cloud::estimate_normals;
 use crate::register::convert::{marker_points, markers_value, transform_isometry};
 use crate::register::{
-    IcpMethod, IcpParams, Kernel, View, merge_markers, poses_from_markers, register_views,
+    IcpMethod, IcpParams, Kernel, MarkerAnchoring, View, merge_markers, poses_from_markers,
+    register_views,
 };
 use fusegraph_engine::Inputs;
 use fusegraph_engine::typed::declaration::{
@@ -19,7 +20,7 @@ pub const MAX_VIEWS: usize = 8;
 
 /// Several camera clouds (and their markers) with rough poses -> one cloud and one marker set: pairwise ICP around the ring, then global adjustment
 #[derive(Op)]
-#[op(name = "register.multiview", version = 3)]
+#[op(name = "register.multiview", version = 4)]
 pub struct Multiview {
     /// ICP: pairs farther apart are ignored
     #[param(default = 8.0, unit = "mm", min = 1e-3)]
@@ -48,6 +49,10 @@ pub struct Multiview {
     /// Neighbours for normals of clouds without them
     #[param(default = 12, min = 3, max = 200)]
     pub normals_k: usize,
+    /// Weight of the markers two views share, all together, against their
+    /// surface pairs in the registration (0 = surfaces alone)
+    #[param(default = 1.0, min = 0.0)]
+    pub marker_weight: f64,
 }
 
 /// The frame of `register.multiview`'s outputs.
@@ -217,7 +222,16 @@ impl RunOp for Multiview {
             tolerance: self.tolerance,
             voxel_sizes_mm: self.voxel_sizes_mm.clone(),
         };
-        let mut m = register_views(&views, &rough, &p, self.rounds).map_err(OpError::invalid)?;
+        let anchoring = (self.marker_weight > 0.0).then(|| MarkerAnchoring {
+            markers: markers
+                .iter()
+                .map(|m| m.clone().unwrap_or_default())
+                .collect(),
+            tolerance_mm: self.merge_mm,
+            weight: self.marker_weight,
+        });
+        let mut m = register_views(&views, &rough, &p, self.rounds, anchoring.as_ref())
+            .map_err(OpError::invalid)?;
         let out_frame = match self.frame {
             OutputFrame::FirstView => {
                 let origin = m.poses[0].inverse();
@@ -284,17 +298,7 @@ mod tests {
     }
 
     fn op() -> Multiview {
-        Multiview {
-            max_distance_mm: 8.0,
-            trim_ratio: 0.8,
-            kernel_mm: 1.0,
-            voxel_sizes_mm: vec![4.0, 0.0],
-            rounds: 2,
-            tolerance: 1e-5,
-            frame: OutputFrame::World,
-            merge_mm: 4.0,
-            normals_k: 12,
-        }
+        fusegraph_engine::typed::declared_defaults().expect("every parameter has a default")
     }
 
     #[test]

@@ -29,7 +29,7 @@ pub use dense::{
     select, sgm_disparity, speckle_size_px,
 };
 pub use features::{
-    FeatureMatch, MatchParams, RangeParams, disparity_range, features_from_table,
+    FeatureMatch, MatchParams, RangeParams, core_disparities, disparity_range, features_from_table,
     features_to_table, match_features, percentile, supported_disparities,
 };
 pub use markers::{

@@ -36,7 +36,9 @@ mod table;
 pub use fast::{FastParams, detect_fast};
 pub use integral::Integral;
 pub use matching::{FeatureMatch, MatchParams, match_features};
-pub use range::{RangeParams, disparity_range, percentile, supported_disparities};
+pub use range::{
+    RangeParams, core_disparities, disparity_range, percentile, supported_disparities,
+};
 pub use surf::{HessianParams, detect_hessian};
 pub use table::{features_from_table, features_to_table};
 

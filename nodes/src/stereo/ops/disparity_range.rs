@@ -1,23 +1,24 @@
 //! `stereo.disparity_range`: the dense matchers' search range from matches.
 
-use crate::stereo::{RangeParams, disparity_range, supported_disparities};
+use crate::stereo::{RangeParams, core_disparities, disparity_range};
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Matches, Rectification};
 
-/// Disparity search range from matches: those nearby matches agree with (and
-/// the rig's geometry allows), their percentiles widened by a margin
+/// Disparity search range from matches: those nearby matches agree with and
+/// those near them (all that the rig's geometry allows), their percentiles
+/// widened by a margin
 #[derive(Debug, Clone, PartialEq, Op)]
-#[op(name = "stereo.disparity_range", version = 2)]
+#[op(name = "stereo.disparity_range", version = 3)]
 pub struct DisparityRange {
     /// A match counts when at least `min_support` others within this radius
     /// (left image) agree on its disparity (0 = every match counts)
-    #[param(default = 32.0, unit = "px", min = 0.0)]
+    #[param(default = 48.0, unit = "px", min = 0.0)]
     pub support_radius_px: f64,
     /// Largest disparity difference of agreeing matches
-    #[param(default = 2.0, unit = "px", min = 0.0)]
+    #[param(default = 3.0, unit = "px", min = 0.0)]
     pub support_tolerance_px: f64,
     /// Agreeing neighbours a match needs
-    #[param(default = 2, min = 1)]
+    #[param(default = 1, min = 1)]
     pub min_support: usize,
     /// Without a `rectification` input: the pair is rectified so a point at
     /// infinity has disparity 0 (Middlebury, most stereo cameras' rectified
@@ -93,18 +94,17 @@ impl RunOp for DisparityRange {
             .map(|r| r.p1[0][2] - r.p2[0][2])
             .or(self.zero_at_infinity.then_some(0.0));
         let lowest = at_infinity.map(|d| d - 1.0);
-        let disparities = supported_disparities(
-            &located,
+        let support = (
             self.support_radius_px,
             self.support_tolerance_px,
             self.min_support,
-            lowest,
         );
+        let disparities = core_disparities(&located, support, lowest, &self.params());
         let dropped = located.len() - disparities.len();
         if dropped > 0 {
             ctx.note(format!(
                 "{dropped} of {} matches left out: no {} neighbours within {} px agree on their \
-                 disparity{}",
+                 disparity and it lies beyond the margin of those that have{}",
                 located.len(),
                 self.min_support,
                 self.support_radius_px,

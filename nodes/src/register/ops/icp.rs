@@ -2,12 +2,12 @@
 
 use crate::cloud::Nearest;
 use crate::cloud::convert::{cloud_normals, cloud_points};
-use crate::register::convert::{transform_isometry, transform_value};
+use crate::register::convert::{marker_points, transform_isometry, transform_value};
 use crate::register::figures::icp_figures;
-use crate::register::{IcpMethod, IcpParams, Kernel, icp};
+use crate::register::{Anchors, IcpMethod, IcpParams, Kernel, icp_anchored};
 use fusegraph_engine::typed::prelude::*;
-use fusegraph_engine::value::{PointCloud, Table, Transform};
-use nalgebra::Isometry3;
+use fusegraph_engine::value::{Markers, PointCloud, Table, Transform};
+use nalgebra::{Isometry3, Point3};
 
 /// Iterative closest point: source cloud onto target cloud
 #[derive(Op)]
@@ -37,6 +37,14 @@ pub struct Icp {
     /// Coarse-to-fine source voxel sizes (0 = full)
     #[param(default = [], unit = "mm", min = 0.0)]
     pub voxel_sizes_mm: Vec<f64>,
+    /// Weight of the landmarks, all together, against the surface pairs
+    /// (0: they are only checked, not fitted)
+    #[param(default = 0.0, min = 0.0)]
+    pub landmark_weight: f64,
+    /// A note warns when ICP moves the landmarks this much further from
+    /// their matches (RMS) than the start had them
+    #[param(default = 1.0, unit = "mm", min = 0.0)]
+    pub landmark_drift_mm: f64,
 }
 
 /// The robust kernel, by name (its threshold is `kernel_mm`).
@@ -69,6 +77,51 @@ pub struct IcpInputs {
     pub target: Arc<PointCloud>,
     /// Start (source -> target), e.g. from markers
     pub init: Option<Arc<Transform>>,
+    /// Landmarks in the source frame (e.g. the markers matched to the
+    /// target's), paired in order with `landmarks_target`
+    pub landmarks_source: Option<Arc<Markers>>,
+    /// The same landmarks in the target frame
+    pub landmarks_target: Option<Arc<Markers>>,
+}
+
+/// The landmark pairs, checked: both sides or neither, in the clouds' frames,
+/// one to one.
+fn landmark_pairs(
+    inputs: &IcpInputs,
+) -> Result<Option<(Vec<Point3<f64>>, Vec<Point3<f64>>)>, OpError> {
+    match (&inputs.landmarks_source, &inputs.landmarks_target) {
+        (None, None) => Ok(None),
+        (Some(a), Some(b)) => {
+            if a.frame != inputs.source.frame || b.frame != inputs.target.frame {
+                return Err(OpError::invalid(format!(
+                    "landmarks are in `{}` and `{}`, the clouds in `{}` and `{}`",
+                    a.frame, b.frame, inputs.source.frame, inputs.target.frame
+                )));
+            }
+            let (a, b) = (marker_points(a), marker_points(b));
+            if a.len() != b.len() {
+                return Err(OpError::invalid(format!(
+                    "{} source landmarks and {} target landmarks: they pair in order",
+                    a.len(),
+                    b.len()
+                )));
+            }
+            Ok(Some((a, b)))
+        }
+        _ => Err(OpError::invalid(
+            "connect both landmarks_source and landmarks_target, or neither",
+        )),
+    }
+}
+
+/// RMS distance of landmark pairs under `t`, mm.
+fn landmark_rms(source: &[Point3<f64>], target: &[Point3<f64>], t: &Isometry3<f64>) -> f64 {
+    let sum: f64 = source
+        .iter()
+        .zip(target)
+        .map(|(s, q)| (t * s - q).norm_squared())
+        .sum();
+    (sum / source.len().max(1) as f64).sqrt()
 }
 
 #[derive(Outputs)]
@@ -84,6 +137,7 @@ impl RunOp for Icp {
     type Outputs = IcpOutputs;
 
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
+        let landmarks = landmark_pairs(&inputs)?;
         let (s, t) = (inputs.source, inputs.target);
         let init = match inputs.init {
             Some(tr) => {
@@ -110,7 +164,27 @@ impl RunOp for Icp {
             tolerance: self.tolerance,
             voxel_sizes_mm: self.voxel_sizes_mm.clone(),
         };
-        let r = icp(&sp, &tp, tn.as_deref(), &tree, &init, &p).map_err(OpError::invalid)?;
+        let anchors = landmarks.as_ref().map(|(a, b)| Anchors {
+            source: a.clone(),
+            target: b.clone(),
+            weight: self.landmark_weight,
+        });
+        let r = icp_anchored(&sp, &tp, tn.as_deref(), &tree, &init, &p, anchors.as_ref())
+            .map_err(OpError::invalid)?;
+        if let Some((a, b)) = &landmarks {
+            let (before, after) = (landmark_rms(a, b, &init), landmark_rms(a, b, &r.transform));
+            ctx.metric("landmark_rmse_init_mm", before);
+            ctx.metric("landmark_rmse_mm", after);
+            if after - before > self.landmark_drift_mm {
+                ctx.note(format!(
+                    "the surfaces pulled the {} landmarks from their matches: RMS {before:.2} mm \
+                     at the start, {after:.2} mm after ICP. The surfaces and the markers disagree: \
+                     the tissue may have moved between the scans, which a rigid registration \
+                     cannot follow; the markers' fit (the start) may be the better one",
+                    a.len()
+                ));
+            }
+        }
         ctx.metric("rmse_mm", r.rmse_mm);
         ctx.metric("fitness", r.fitness);
         ctx.metric("iterations", r.iterations as f64);
@@ -141,5 +215,54 @@ impl RunOp for Icp {
             transform: transform_value(&r.transform, &s.frame, &t.frame),
             trace,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cloud(frame: &str) -> Arc<PointCloud> {
+        Arc::new(PointCloud::new(vec![0.0, 0.0, 100.0], None, None, frame).unwrap())
+    }
+
+    fn markers(points: Vec<f64>, frame: &str) -> Arc<Markers> {
+        let ids = (0..points.len() as u32 / 3).collect::<Vec<u32>>();
+        Arc::new(Markers::new(points, ids, frame).unwrap())
+    }
+
+    fn inputs(a: Option<Arc<Markers>>, b: Option<Arc<Markers>>) -> IcpInputs {
+        IcpInputs {
+            source: cloud("camera_left"),
+            target: cloud("mri_lps"),
+            init: None,
+            landmarks_source: a,
+            landmarks_target: b,
+        }
+    }
+
+    #[test]
+    fn landmarks_come_in_pairs_in_the_clouds_frames() {
+        let two = |frame| markers(vec![0.0, 0.0, 0.0, 10.0, 0.0, 0.0], frame);
+        let one = markers(vec![0.0, 0.0, 0.0], "mri_lps");
+        assert!(landmark_pairs(&inputs(None, None)).unwrap().is_none());
+        let (a, b) = landmark_pairs(&inputs(Some(two("camera_left")), Some(two("mri_lps"))))
+            .unwrap()
+            .unwrap();
+        assert_eq!((a.len(), b.len()), (2, 2));
+        let err = |i: IcpInputs| landmark_pairs(&i).unwrap_err().to_string();
+        assert!(err(inputs(Some(two("camera_left")), None)).contains("or neither"));
+        assert!(err(inputs(Some(two("world")), Some(two("mri_lps")))).contains("`world`"));
+        assert!(err(inputs(Some(two("camera_left")), Some(one))).contains("pair in order"));
+    }
+
+    #[test]
+    fn landmark_rms_by_hand() {
+        // Two pairs 3 and 4 mm apart after a 1 mm shift: RMS sqrt((9 + 16) / 2).
+        let source = [Point3::new(0.0, 0.0, 0.0), Point3::new(10.0, 0.0, 0.0)];
+        let target = [Point3::new(4.0, 0.0, 0.0), Point3::new(11.0, 4.0, 0.0)];
+        let shift = Isometry3::translation(1.0, 0.0, 0.0);
+        let rms = landmark_rms(&source, &target, &shift);
+        assert!((rms - (12.5f64).sqrt()).abs() < 1e-12, "{rms}");
     }
 }

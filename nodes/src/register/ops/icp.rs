@@ -84,11 +84,12 @@ pub struct IcpInputs {
     pub landmarks_target: Option<Arc<Markers>>,
 }
 
+/// Landmarks in the source frame and their matches in the target frame.
+type LandmarkPairs = (Vec<Point3<f64>>, Vec<Point3<f64>>);
+
 /// The landmark pairs, checked: both sides or neither, in the clouds' frames,
 /// one to one.
-fn landmark_pairs(
-    inputs: &IcpInputs,
-) -> Result<Option<(Vec<Point3<f64>>, Vec<Point3<f64>>)>, OpError> {
+fn landmark_pairs(inputs: &IcpInputs) -> Result<Option<LandmarkPairs>, OpError> {
     match (&inputs.landmarks_source, &inputs.landmarks_target) {
         (None, None) => Ok(None),
         (Some(a), Some(b)) => {

@@ -54,6 +54,17 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=1000))]
         smooth: u32,
     },
+    /// The phantom generator under each acquisition condition (one at a
+    /// time, then the lab and hard presets) against the ideal phantom: best
+    /// wall time of each, its MRI, calibration and view stages, and ratios.
+    Phantom {
+        /// Resolution preset: full or small.
+        #[arg(long, default_value = "full", value_parser = ["full", "small"])]
+        size: String,
+        /// Repetitions; the best time of each is reported.
+        #[arg(long, default_value_t = 2, value_parser = count::<100>)]
+        repeat: usize,
+    },
     /// `mri.otsu` with its defaults (256 bins) on a DICOM series, as
     /// `../shared/bench/peers.py otsu DIR` times SimpleITK's
     /// OtsuThresholdImageFilter on the same series.
@@ -278,6 +289,11 @@ pub fn run_bench(what: BenchCommand, registry: &Registry) -> anyhow::Result<()> 
         } => marching_cubes(size, dicom.as_deref(), repeat, smooth, registry),
         BenchCommand::Components { mask, repeat } => components(&mask, repeat, registry),
         BenchCommand::Otsu { dicom, repeat } => otsu(&dicom, repeat, registry),
+        BenchCommand::Phantom { size, repeat } => crate::bench_phantom::phantom(
+            fusegraph_nodes::phantom::PhantomSize::parse(&size)
+                .ok_or_else(|| anyhow::anyhow!("size is full or small"))?,
+            repeat,
+        ),
         BenchCommand::Sgm {
             left,
             right,

@@ -4,6 +4,7 @@
 mod bench;
 mod bench_calibration;
 mod bench_chessboard;
+mod bench_phantom;
 mod bench_sgm;
 mod list;
 

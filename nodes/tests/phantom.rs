@@ -418,25 +418,39 @@ fn simulated_camera_surface_follows_the_truth() {
     }
 }
 
-#[test]
-fn same_seed_gives_the_same_bytes_on_any_thread_count() {
-    let config = PhantomConfig {
+/// The small phantom of seed 11 with 3 calibration pairs and 1 view: quick
+/// to write, whole in what it holds.
+fn small_seed11() -> PhantomConfig {
+    PhantomConfig {
         size: PhantomSize::Small,
         calibration_pairs: 3,
         views: 1,
         seed: 11,
         ..PhantomConfig::default()
-    };
+    }
+}
+
+/// Writes `config` into `dir` on `threads` threads: the folder's digest and
+/// the truth.
+fn generate_on_threads(
+    config: &PhantomConfig,
+    dir: &Path,
+    threads: usize,
+) -> (blake3::Hash, GroundTruth) {
+    let g = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap()
+        .install(|| generate(config, dir).unwrap());
+    (fusegraph_engine::hash::hash_path(dir).unwrap(), g.truth)
+}
+
+#[test]
+fn same_seed_gives_the_same_bytes_on_any_thread_count() {
+    let config = small_seed11();
     let t = tempfile::tempdir().unwrap();
-    let run = |threads: usize, name: &str| {
-        let dir = t.path().join(name);
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap()
-            .install(|| generate(&config, &dir).unwrap());
-        fusegraph_engine::hash::hash_path(&dir).unwrap()
-    };
+    let run =
+        |threads: usize, name: &str| generate_on_threads(&config, &t.path().join(name), threads).0;
     assert_eq!(run(1, "one"), run(2, "two"));
     let other = PhantomConfig {
         seed: 12,
@@ -518,15 +532,8 @@ const IDEAL_SMALL_SEED11_DIGEST: &str =
 
 #[test]
 fn default_conditions_give_the_ideal_phantoms_bytes() {
-    let config = PhantomConfig {
-        size: PhantomSize::Small,
-        calibration_pairs: 3,
-        views: 1,
-        seed: 11,
-        ..PhantomConfig::default()
-    };
     let t = tempfile::tempdir().unwrap();
-    generate(&config, t.path()).unwrap();
+    generate(&small_seed11(), t.path()).unwrap();
     let digest = fusegraph_engine::hash::hash_path(t.path()).unwrap();
     assert_eq!(digest.to_hex().as_str(), IDEAL_SMALL_SEED11_DIGEST);
 }
@@ -642,15 +649,8 @@ fn every_condition_gives_the_same_bytes_on_any_thread_count() {
         ..PhantomConfig::default()
     };
     let t = tempfile::tempdir().unwrap();
-    let run = |threads: usize, name: &str| {
-        let dir = t.path().join(name);
-        let g = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap()
-            .install(|| generate(&config, &dir).unwrap());
-        (fusegraph_engine::hash::hash_path(&dir).unwrap(), g.truth)
-    };
+    let run =
+        |threads: usize, name: &str| generate_on_threads(&config, &t.path().join(name), threads);
     let (one, truth) = run(1, "one");
     assert_eq!(one, run(2, "two").0);
     assert!(

@@ -283,21 +283,7 @@ mod tests {
             let row: Vec<f64> = (0..camera.width)
                 .map(|x| img[(x + 20 * camera.width) * 3] as f64)
                 .collect();
-            let lsf: Vec<f64> = row.windows(2).map(|w| w[0] - w[1]).collect();
-            let total: f64 = lsf.iter().sum();
-            let mean = lsf
-                .iter()
-                .enumerate()
-                .map(|(i, v)| i as f64 * v)
-                .sum::<f64>()
-                / total;
-            let var = lsf
-                .iter()
-                .enumerate()
-                .map(|(i, v)| (i as f64 - mean).powi(2) * v)
-                .sum::<f64>()
-                / total;
-            var.sqrt()
+            crate::phantom::defocus::line_spread_sigma_px(&row)
         };
         let circle = 4.0 * 8.0 * 300.0 / (292.0 * 600.0) / pixel_mm;
         assert!((lens.blur_circle_px(600.0) - circle).abs() < 1e-9);

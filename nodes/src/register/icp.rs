@@ -273,37 +273,35 @@ pub fn icp_anchored(
                     // Sums over fixed chunks in parallel, then the chunks in
                     // order: the same bits on any number of threads (rayon's
                     // own reduce splits by the thread count).
-                    let partials: Vec<(Matrix6<f64>, Vector6<f64>)> = pairs
+                    // Each partial also sums the kernel weights: the
+                    // landmarks' weight is relative to the surface's.
+                    let partials: Vec<(Matrix6<f64>, Vector6<f64>, f64)> = pairs
                         .par_chunks(REDUCTION_CHUNK)
                         .map(|chunk| {
                             chunk.iter().fold(
-                                (Matrix6::zeros(), Vector6::zeros()),
-                                |(ata, atb), &(i, j, _)| {
+                                (Matrix6::zeros(), Vector6::zeros(), 0.0),
+                                |(ata, atb, total), &(i, j, _)| {
                                     let (m, q, n) = (moved[i], target[j], normals[j]);
                                     let r = n.dot(&(m - q));
                                     let w = p.kernel.weight(r);
                                     let c = m.coords.cross(&n);
                                     let row = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
-                                    (ata + row * row.transpose() * w, atb + row * (r * w))
+                                    (
+                                        ata + row * row.transpose() * w,
+                                        atb + row * (r * w),
+                                        total + w,
+                                    )
                                 },
                             )
                         })
                         .collect();
-                    let (mut ata, mut atb) = partials
-                        .iter()
-                        .fold((Matrix6::zeros(), Vector6::zeros()), |(a, b), (pa, pb)| {
-                            (a + pa, b + pb)
-                        });
+                    let (mut ata, mut atb, surface_weight) = partials.iter().fold(
+                        (Matrix6::zeros(), Vector6::zeros(), 0.0),
+                        |(a, b, t), (pa, pb, pt)| (a + pa, b + pb, t + pt),
+                    );
                     if let Some(anchors) = anchors {
                         // Each landmark: three rows, one per axis, of the
                         // linearised point-to-point residual m + w x m + t - q.
-                        let surface_weight: f64 = pairs
-                            .iter()
-                            .map(|&(i, j, _)| {
-                                let r = normals[j].dot(&(moved[i] - target[j]));
-                                p.kernel.weight(r)
-                            })
-                            .sum();
                         let each = anchors.each(surface_weight);
                         for (s, q) in anchors.source.iter().zip(&anchors.target) {
                             let m = transform * s;

@@ -122,14 +122,57 @@ pub struct Anchors {
     /// The weight of all landmarks together relative to all surface pairs of
     /// an iteration (1: as much as the whole surface).
     pub weight: f64,
+    /// The target surface's unit normal at each target landmark (target
+    /// frame), or `None`. Given, a landmark pins only the two directions
+    /// across its normal, and the surface pins the third: right for
+    /// landmarks whose two sides are different points of one object along
+    /// the normal (a marker's face seen by a camera, its gel's centroid in
+    /// MRI, a few mm deeper). Point-to-plane only; point-to-point fits
+    /// landmarks in full.
+    pub normals: Option<Vec<Vector3<f64>>>,
 }
 
 impl Anchors {
+    /// The directions landmark `k`'s residual is fitted along: the three
+    /// axes, or the two across its normal.
+    fn directions(&self, k: usize) -> Vec<Vector3<f64>> {
+        match self.normals.as_ref().and_then(|n| n.get(k)) {
+            Some(n) => {
+                let a = if n.x.abs() < 0.9 {
+                    Vector3::x()
+                } else {
+                    Vector3::y()
+                };
+                let t1 = a.cross(n).normalize();
+                vec![t1, n.cross(&t1)]
+            }
+            None => vec![Vector3::x(), Vector3::y(), Vector3::z()],
+        }
+    }
+
     /// Each landmark pair's weight when `surface_weight` is the surface
     /// pairs' total.
     fn each(&self, surface_weight: f64) -> f64 {
         self.weight * surface_weight / self.source.len().max(1) as f64
     }
+}
+
+/// The surface's orientation at each of `at` (mm): the mean of the unit
+/// normals of its `k` nearest surface points (`tree` over the points whose
+/// `normals` these are), normalised. Averaging over a patch wider than a
+/// marker gives the skin's normal around it, not its cap's.
+pub fn normals_near(
+    tree: &Nearest,
+    normals: &[Vector3<f64>],
+    at: &[Point3<f64>],
+    k: usize,
+) -> Vec<Vector3<f64>> {
+    at.iter()
+        .map(|p| {
+            let sum: Vector3<f64> = tree.knn(p, k).iter().map(|&j| normals[j]).sum();
+            sum.try_normalize(1e-12).unwrap_or_else(Vector3::z)
+        })
+        .collect()
 }
 
 /// Pairs per partial sum of the point-to-plane normal equations.
@@ -300,18 +343,17 @@ pub fn icp_anchored(
                         |(a, b, t), (pa, pb, pt)| (a + pa, b + pb, t + pt),
                     );
                     if let Some(anchors) = anchors {
-                        // Each landmark: three rows, one per axis, of the
-                        // linearised point-to-point residual m + w x m + t - q.
+                        // Each landmark: one row per direction it is fitted
+                        // along, of the linearised residual m + w x m + t - q.
                         let each = anchors.each(surface_weight);
-                        for (s, q) in anchors.source.iter().zip(&anchors.target) {
+                        for (k, (s, q)) in anchors.source.iter().zip(&anchors.target).enumerate() {
                             let m = transform * s;
                             let r = m - q;
-                            for axis in 0..3 {
-                                let e = Vector3::ith(axis, 1.0);
+                            for e in anchors.directions(k) {
                                 let c = m.coords.cross(&e);
                                 let row = Vector6::new(c.x, c.y, c.z, e.x, e.y, e.z);
                                 ata += row * row.transpose() * each;
-                                atb += row * (r[axis] * each);
+                                atb += row * (r.dot(&e) * each);
                             }
                         }
                     }
@@ -421,6 +463,7 @@ mod tests {
             source: landmarks.iter().map(|p| truth.inverse() * p).collect(),
             target: landmarks.to_vec(),
             weight: 1.0,
+            normals: None,
         };
         let params = IcpParams {
             method: IcpMethod::PointToPlane,
@@ -467,6 +510,82 @@ mod tests {
             Some(&lopsided),
         );
         assert!(e.unwrap_err().contains("pair one to one"));
+    }
+
+    #[test]
+    fn tangential_landmarks_fix_the_turn_without_pulling_along_the_normal() {
+        // The cap again, turned 0.2 rad about its axis. Each source landmark
+        // lies 3 mm off the surface along the normal (a marker's face) and
+        // its target on the surface (the gel under it): fitted in full they
+        // pull the cap off along the normals; fitted across the normal only
+        // they fix the turn and leave the surface's fit alone.
+        let cap: Vec<Point3<f64>> = (0..4000)
+            .map(|k| {
+                let (u, v) = ((k % 80) as f64 / 80.0, (k / 80) as f64 / 50.0);
+                let (theta, phi) = (u * std::f64::consts::TAU, 0.15 + 0.9 * v);
+                Point3::new(
+                    60.0 * phi.sin() * theta.cos(),
+                    60.0 * phi.sin() * theta.sin(),
+                    60.0 * phi.cos(),
+                )
+            })
+            .filter(|p| p.z > 10.0)
+            .collect();
+        let normals: Vec<Vector3<f64>> = cap.iter().map(|p| p.coords.normalize()).collect();
+        let tree = Nearest::new(&cap).unwrap();
+        let truth = Isometry3::new(Vector3::zeros(), Vector3::new(0.0, 0.0, 0.2));
+        let source: Vec<Point3<f64>> = cap.iter().map(|p| truth.inverse() * p).collect();
+        let on_skin = [cap[7], cap[1500], cap[2900]];
+        let faces: Vec<Point3<f64>> = on_skin
+            .iter()
+            .map(|p| truth.inverse() * (p + p.coords.normalize() * 3.0))
+            .collect();
+        // The mean normal of a patch is the sphere's within a degree or two
+        // (the patch is lopsided where the sampling grid is).
+        for p in &on_skin {
+            let n = normals_near(&tree, &normals, &[*p], 30)[0];
+            assert!(n.dot(&p.coords.normalize()) > 0.999, "{n:?} at {p:?}");
+        }
+        let surface_normals: Vec<Vector3<f64>> =
+            on_skin.iter().map(|p| p.coords.normalize()).collect();
+        let params = IcpParams {
+            method: IcpMethod::PointToPlane,
+            max_distance_mm: 20.0,
+            trim_ratio: 1.0,
+            kernel: Kernel::None,
+            max_iterations: 100,
+            tolerance: 1e-12,
+            voxel_sizes_mm: vec![],
+        };
+        let run = |normals_given: bool| {
+            let anchors = Anchors {
+                source: faces.clone(),
+                target: on_skin.to_vec(),
+                weight: 1.0,
+                normals: normals_given.then(|| surface_normals.clone()),
+            };
+            let init = Isometry3::identity();
+            let t = icp_anchored(
+                &source,
+                &cap,
+                Some(&normals),
+                &tree,
+                &init,
+                &params,
+                Some(&anchors),
+            )
+            .unwrap()
+            .transform;
+            let off_mm = (t.translation.vector - truth.translation.vector).norm();
+            (t.rotation.angle_to(&truth.rotation).to_degrees(), off_mm)
+        };
+        let (turn, off) = run(true);
+        assert!(
+            turn < 0.01 && off < 0.01,
+            "across the normal: {turn} deg, {off} mm off"
+        );
+        let (turn, off) = run(false);
+        assert!(off > 0.5 || turn > 0.5, "in full: {turn} deg, {off} mm off");
     }
 
     #[test]

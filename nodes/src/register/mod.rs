@@ -11,7 +11,9 @@ pub mod ops;
 mod procrustes;
 mod targets;
 
-pub use icp::{Anchors, IcpMethod, IcpParams, IcpResult, IcpStep, Kernel, icp, icp_anchored};
+pub use icp::{
+    Anchors, IcpMethod, IcpParams, IcpResult, IcpStep, Kernel, icp, icp_anchored, normals_near,
+};
 pub use match_markers::{MarkerMatch, match_markers};
 pub use multiview::{
     MarkerAnchoring, MergedMarker, Multiview, View, merge_markers, poses_from_markers,

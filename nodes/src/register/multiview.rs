@@ -78,6 +78,7 @@ fn shared_markers(
             source: m.pairs.iter().map(|&(a, _)| mj[a]).collect(),
             target: m.pairs.iter().map(|&(_, b)| mi[b]).collect(),
             weight: anchoring.weight,
+            normals: None,
         };
         (anchors, fit)
     })
@@ -114,6 +115,7 @@ fn adjustment_anchors(
         source,
         target,
         weight: anchoring.weight,
+        normals: None,
     })
 }
 

@@ -4,14 +4,14 @@ use crate::cloud::Nearest;
 use crate::cloud::convert::{cloud_normals, cloud_points};
 use crate::register::convert::{marker_points, transform_isometry, transform_value};
 use crate::register::figures::icp_figures;
-use crate::register::{Anchors, IcpMethod, IcpParams, Kernel, icp_anchored};
+use crate::register::{Anchors, IcpMethod, IcpParams, Kernel, icp_anchored, normals_near};
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Markers, PointCloud, Table, Transform};
 use nalgebra::{Isometry3, Point3};
 
 /// Iterative closest point: source cloud onto target cloud
 #[derive(Op)]
-#[op(name = "register.icp", version = 2)]
+#[op(name = "register.icp", version = 3)]
 pub struct Icp {
     /// Error metric
     #[param(default = IcpMethod::PointToPlane)]
@@ -41,11 +41,29 @@ pub struct Icp {
     /// (0: they are only checked, not fitted)
     #[param(default = 0.0, min = 0.0)]
     pub landmark_weight: f64,
+    /// across_normal: a landmark pins only the two directions across the
+    /// target surface's normal there, the surface the third (markers: the
+    /// camera sees a face, MRI its gel a few mm deeper); full: all three
+    /// (point-to-plane only; point-to-point fits them in full)
+    #[param(default = LandmarkFit::AcrossNormal)]
+    pub landmark_fit: LandmarkFit,
     /// A note warns when ICP moves the landmarks this much further from
     /// their matches (RMS) than the start had them
     #[param(default = 1.0, unit = "mm", min = 0.0)]
     pub landmark_drift_mm: f64,
 }
+
+/// How landmarks join the surface pairs (`landmark_fit`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Choice)]
+pub enum LandmarkFit {
+    /// Only across the target surface's normal.
+    AcrossNormal,
+    /// In all three directions.
+    Full,
+}
+
+/// Target points whose normals give the surface's orientation at a landmark.
+const LANDMARK_NORMAL_POINTS: usize = 256;
 
 /// The robust kernel, by name (its threshold is `kernel_mm`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Choice)]
@@ -169,6 +187,12 @@ impl RunOp for Icp {
             source: a.clone(),
             target: b.clone(),
             weight: self.landmark_weight,
+            normals: match (self.landmark_fit, &tn) {
+                (LandmarkFit::AcrossNormal, Some(n)) => {
+                    Some(normals_near(&tree, n, b, LANDMARK_NORMAL_POINTS))
+                }
+                _ => None,
+            },
         });
         let r = icp_anchored(&sp, &tp, tn.as_deref(), &tree, &init, &p, anchors.as_ref())
             .map_err(OpError::invalid)?;

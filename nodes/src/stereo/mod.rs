@@ -22,11 +22,11 @@ pub mod ops;
 mod triangulate;
 
 pub use dense::{
-    Aggregated, BlockCost, CensusCosts, CostRows, CostVolume, DisparityRange, GreyImage, Isa,
-    MAX_SIDE, MatchCost, Paths, RefineParams, SelectParams, SgmConfig, SgmParams, aggregate,
-    block_match, bt_costs, census_costs, census_transform, check_bt_window, check_census_window,
-    check_pair, check_penalties, filter_speckles, flat_windows, noise_sigma, refine_disparity,
-    select, sgm_disparity, speckle_size_px,
+    Aggregated, BlockCost, CensusCosts, CostRows, CostVolume, DisparityRange, FillParams,
+    GreyImage, Isa, MAX_SIDE, MatchCost, Paths, RefineParams, SelectParams, SgmConfig, SgmParams,
+    aggregate, block_match, bt_costs, census_costs, census_transform, check_bt_window,
+    check_census_window, check_pair, check_penalties, fill_disparity, filter_speckles,
+    flat_windows, noise_sigma, refine_disparity, select, sgm_disparity, speckle_size_px,
 };
 pub use features::{
     FeatureMatch, MatchParams, RangeParams, core_disparities, disparity_range, features_from_table,

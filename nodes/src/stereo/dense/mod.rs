@@ -1,7 +1,7 @@
 //! Dense matching of a rectified grey pair: matching costs (census,
 //! Birchfield-Tomasi), semi-global aggregation or local block matching, the
 //! selection of one disparity per pixel, and the filters after it (speckles,
-//! texture, intensity refinement).
+//! texture, intensity refinement, confidence-aware filling and smoothing).
 //!
 //! Layers, each importing only those below it: [`simd`] (the kernels, run
 //! with the CPU's best instruction set), `pair` (the checked pair and
@@ -11,6 +11,7 @@
 mod block_match;
 mod cost;
 mod figure;
+mod fill;
 mod filter;
 mod pair;
 mod refine;
@@ -24,6 +25,7 @@ mod volume;
 pub use block_match::{BlockCost, block_match};
 pub use cost::{CensusCosts, bt_costs, census_costs, census_transform, check_census_window};
 pub(crate) use figure::disparity_figure_png;
+pub use fill::{FillParams, fill_disparity};
 pub use filter::filter_speckles;
 pub use pair::{DisparityRange, GreyImage, check_pair};
 pub use refine::{MAX_SIDE, RefineParams, refine_disparity};

@@ -2,7 +2,12 @@
 //! and, for every chosen metric and every varied key, the metric of each
 //! finished variant against the key's value (an SVG strip plot: the values
 //! in the order the sweep lists them, one dot per variant). One
-//! self-contained file: no server, no network.
+//! self-contained file: no server, no network. The plots are also written
+//! alone, `plots/METRIC_against_KEY.svg`, for papers and READMEs.
+//!
+//! The keys plotted are those of `[sweep.vary]` and, for named variants,
+//! every key that at least two finished variants set to different values
+//! (a sweep of conditions one at a time: each condition's levels).
 
 use super::compare::{Comparison, Status, shown};
 use std::fmt::Write;
@@ -14,8 +19,69 @@ fn esc(s: &str) -> String {
         .replace('"', "&quot;")
 }
 
-/// One strip plot of `metric` (column `col`) against the values of `key`.
+/// The keys to plot against: the varied ones, then those that named
+/// variants set to at least two values, in the order the rows first set
+/// them.
+pub fn plot_keys(c: &Comparison) -> Vec<String> {
+    let mut keys: Vec<String> = c.varied.clone();
+    let done = || c.rows.iter().filter(|r| r.status == Status::Done);
+    for r in done() {
+        for (k, _) in &r.overrides {
+            if keys.contains(k) {
+                continue;
+            }
+            let mut values: Vec<&str> = done()
+                .filter_map(|r| r.overrides.iter().find(|(kk, _)| kk == k))
+                .map(|(_, v)| v.as_str())
+                .collect();
+            values.sort_unstable();
+            values.dedup();
+            if values.len() >= 2 {
+                keys.push(k.clone());
+            }
+        }
+    }
+    keys
+}
+
+/// Every plot as a standalone SVG: (file name, SVG text).
+pub fn plot_files(c: &Comparison) -> Vec<(String, String)> {
+    let keys = plot_keys(c);
+    let safe = |s: &str| -> String {
+        s.chars()
+            .map(|ch| {
+                if ch.is_ascii_alphanumeric() || ch == '.' {
+                    ch
+                } else {
+                    '_'
+                }
+            })
+            .collect()
+    };
+    (0..c.metrics.len())
+        .flat_map(|col| {
+            keys.iter().filter_map(move |k| {
+                let svg = plot_svg(c, col, k)?;
+                let name = format!("{}_against_{}.svg", safe(&c.metrics[col]), safe(k));
+                Some((name, svg))
+            })
+        })
+        .collect()
+}
+
+/// One strip plot of `metric` (column `col`) against the values of `key`,
+/// in a figure with its caption.
 fn plot(c: &Comparison, col: usize, key: &str) -> Option<String> {
+    let svg = plot_svg(c, col, key)?;
+    Some(format!(
+        "<figure>{svg}<figcaption><code>{}</code> against <code>{}</code></figcaption></figure>",
+        esc(&c.metrics[col]),
+        esc(key)
+    ))
+}
+
+/// The SVG of [`plot`].
+fn plot_svg(c: &Comparison, col: usize, key: &str) -> Option<String> {
     let points: Vec<(&str, &str, f64)> = c
         .rows
         .iter()
@@ -45,7 +111,7 @@ fn plot(c: &Comparison, col: usize, key: &str) -> Option<String> {
     let x = |i: usize| left + (i as f64 + 0.5) * (w - left - 10.0) / categories.len() as f64;
     let y = |v: f64| 10.0 + (h - bottom - 10.0) * (1.0 - (v - lo) / span);
     let mut s = format!(
-        "<figure><svg viewBox=\"0 0 {w} {h}\" width=\"{w}\" height=\"{h}\" role=\"img\"><title>{} against {}</title>",
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" viewBox=\"0 0 {w} {h}\" width=\"{w}\" height=\"{h}\" role=\"img\"><title>{} against {}</title>",
         esc(&c.metrics[col]),
         esc(key)
     );
@@ -83,12 +149,7 @@ fn plot(c: &Comparison, col: usize, key: &str) -> Option<String> {
             esc(variant)
         );
     }
-    let _ = write!(
-        s,
-        "</svg><figcaption><code>{}</code> against <code>{}</code></figcaption></figure>",
-        esc(&c.metrics[col]),
-        esc(key)
-    );
+    s.push_str("</svg>");
     Some(s)
 }
 
@@ -156,8 +217,9 @@ pub fn to_html(c: &Comparison, best: &str) -> String {
         );
     }
     s.push_str("</tbody></table>");
+    let keys = plot_keys(c);
     let plots: Vec<String> = (0..c.metrics.len())
-        .flat_map(|col| c.varied.iter().filter_map(move |k| plot(c, col, k)))
+        .flat_map(|col| keys.iter().filter_map(move |k| plot(c, col, k)))
         .collect();
     if !plots.is_empty() {
         s.push_str("<h2>Metrics against the varied values</h2>");
@@ -177,4 +239,96 @@ pub fn to_html(c: &Comparison, best: &str) -> String {
          if(m){const i=heads.findIndex(h=>h.textContent===m[2]);if(i>=0)sortBy(i,m[1]?-1:1);}</script></body></html>\n",
     );
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sweep::compare::Row;
+
+    fn row(name: &str, overrides: &[(&str, &str)], status: Status, tre: f64) -> Row {
+        Row {
+            variant: name.into(),
+            overrides: overrides
+                .iter()
+                .map(|(k, v)| (k.to_string(), v.to_string()))
+                .collect(),
+            status,
+            metrics: vec![Some(tre)],
+            total_ms: Some(1.0),
+            computed_ms: Some(1.0),
+            computed: 1,
+            reused: 0,
+            nodes: vec![],
+        }
+    }
+
+    #[test]
+    fn named_variants_are_plotted_against_each_key_they_vary() {
+        // Conditions one at a time: JPEG at two levels, the lamp at one, a
+        // preset at two, one of them failed.
+        let c = Comparison {
+            name: "conditions".into(),
+            metrics: vec!["evaluate.tre_mm".into()],
+            varied: vec![],
+            rank_by: None,
+            rows: vec![
+                row(
+                    "ideal",
+                    &[("phantom.conditions", "\"ideal\"")],
+                    Status::Done,
+                    0.2,
+                ),
+                row(
+                    "lab",
+                    &[("phantom.conditions", "\"lab\"")],
+                    Status::Done,
+                    0.5,
+                ),
+                row(
+                    "jpeg_90",
+                    &[("phantom.jpeg_quality", "90")],
+                    Status::Done,
+                    0.3,
+                ),
+                row(
+                    "jpeg_50",
+                    &[("phantom.jpeg_quality", "50")],
+                    Status::Done,
+                    0.9,
+                ),
+                row(
+                    "warm",
+                    &[("phantom.lamp_kelvin", "[2700.0]")],
+                    Status::Done,
+                    0.2,
+                ),
+                row(
+                    "jpeg_10",
+                    &[("phantom.jpeg_quality", "10")],
+                    Status::Failed("merge".into()),
+                    f64::NAN,
+                ),
+            ],
+        };
+        assert_eq!(
+            plot_keys(&c),
+            ["phantom.conditions", "phantom.jpeg_quality"]
+        );
+        let files = plot_files(&c);
+        let names: Vec<&str> = files.iter().map(|(n, _)| n.as_str()).collect();
+        assert_eq!(
+            names,
+            [
+                "evaluate.tre_mm_against_phantom.conditions.svg",
+                "evaluate.tre_mm_against_phantom.jpeg_quality.svg"
+            ]
+        );
+        let (_, jpeg) = &files[1];
+        assert!(jpeg.starts_with("<svg xmlns=\"http://www.w3.org/2000/svg\""));
+        // Two dots, the failed variant left out, each titled by its variant.
+        assert_eq!(jpeg.matches("<circle").count(), 2);
+        assert!(jpeg.contains("jpeg_90: 0.3") && jpeg.contains("jpeg_50: 0.9"));
+        assert!(to_html(&c, "").contains("against <code>phantom.jpeg_quality</code>"));
+    }
 }

@@ -291,5 +291,13 @@ pub fn write_comparison(c: &compare::Comparison, dir: &Path) -> std::io::Result<
     write(
         "comparison.html",
         compare_html::to_html(c, &compare::best_line(c)),
-    )
+    )?;
+    let plots = compare_html::plot_files(c);
+    if !plots.is_empty() {
+        std::fs::create_dir_all(dir.join("plots"))?;
+        for (name, svg) in plots {
+            write(&format!("plots/{name}"), svg)?;
+        }
+    }
+    Ok(())
 }

@@ -47,6 +47,7 @@ use fusegraph_engine::registry::RegisterError;
 pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.add::<ops::Sgm>()?;
     registry.add::<ops::BlockMatch>()?;
+    registry.add::<ops::FillDisparity>()?;
     registry.add::<ops::Triangulate>()?;
     registry.add::<ops::HsvMarkers>()?;
     registry.add::<ops::Features>()?;

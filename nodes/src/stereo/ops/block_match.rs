@@ -1,6 +1,6 @@
 //! `stereo.block_match`: local block matching of a rectified pair.
 
-use super::matcher::{DisparityOutputs, MatcherInputs, MatcherParams, fill_holes};
+use super::matcher::{DisparityOutputs, MatcherInputs, MatcherParams};
 use crate::stereo::{BlockCost, block_match, filter_speckles, refine_disparity, speckle_size_px};
 use fusegraph_engine::typed::prelude::*;
 
@@ -60,7 +60,6 @@ impl RunOp for BlockMatch {
         if let Some(refine) = refine {
             refine_disparity(&left, &right, &mut data, &refine);
         }
-        fill_holes(m, &mut data, &left, ctx);
         DisparityOutputs::new(data, w, h, range, ctx)
     }
 }

@@ -4,9 +4,7 @@
 
 use super::shape_error;
 use crate::stereo::dense::disparity_figure_png;
-use crate::stereo::{
-    DisparityRange, FillParams, GreyImage, RefineParams, SelectParams, check_pair, fill_disparity,
-};
+use crate::stereo::{DisparityRange, GreyImage, RefineParams, SelectParams, check_pair};
 use fusegraph_engine::figure::FigureData;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Disparity, Image};
@@ -45,26 +43,6 @@ pub struct MatcherParams {
     /// Largest step between neighbours inside one speckle region
     #[param(default = 2.0, unit = "px", min = 0.0)]
     pub speckle_range_px: f64,
-    /// Reach of the confidence-aware, edge-aware filter run last (holes
-    /// filled, and with fill_smooth the valid values smoothed, from valid
-    /// neighbours within the same image region and depth); 0 = off
-    #[param(default = 0.0, unit = "px", min = 0.0, max = 1000.0)]
-    pub fill_sigma_px: f64,
-    /// A grey-level step of the left image this large stops the filter as
-    /// much as fill_sigma_px of distance
-    #[param(default = 16.0, unit = "grey levels", min = 0.001)]
-    pub fill_sigma_grey: f64,
-    /// A disparity step between valid neighbours this large stops the
-    /// filter as much as fill_sigma_px of distance
-    #[param(default = 2.0, unit = "px", min = 0.001)]
-    pub fill_sigma_disparity_px: f64,
-    /// A hole is filled where valid pixels carry at least this share of the
-    /// filter's weight (1: no hole is filled, only smoothing)
-    #[param(default = 0.5, min = 0.0, max = 1.0)]
-    pub fill_min_support: f64,
-    /// Valid disparities take the filtered value too (smoothing)
-    #[param(default = true)]
-    pub fill_smooth: bool,
 }
 
 /// Sub-pixel refinement after selection.
@@ -119,17 +97,6 @@ impl MatcherParams {
             lr_max_diff_px: (lr >= 0.0).then_some(lr),
             subpixel: self.subpixel,
         }
-    }
-
-    /// The fill and smoothing run after matching, `None` when off.
-    pub(crate) fn fill(&self) -> Option<FillParams> {
-        (self.fill_sigma_px > 0.0).then_some(FillParams {
-            sigma_px: self.fill_sigma_px as f32,
-            sigma_grey: self.fill_sigma_grey as f32,
-            sigma_disparity_px: self.fill_sigma_disparity_px as f32,
-            min_support: self.fill_min_support as f32,
-            smooth: self.fill_smooth,
-        })
     }
 
     /// What [`MatcherParams::refine`] would refuse, at validation.
@@ -194,23 +161,6 @@ impl MatcherInputs {
 pub struct DisparityOutputs {
     /// x_left - x_right on the left image, px (NaN = invalid)
     pub disparity: Disparity,
-}
-
-/// Runs the matcher's fill (if on) on `data`, the disparities of `left`,
-/// and reports the share of pixels it filled.
-pub(crate) fn fill_holes(
-    params: &MatcherParams,
-    data: &mut [f32],
-    left: &GreyImage,
-    ctx: &mut RunCtx,
-) {
-    if let Some(fill) = params.fill() {
-        let filled = fill_disparity(data, left, &fill);
-        ctx.metric(
-            "filled_pct",
-            100.0 * filled as f64 / data.len().max(1) as f64,
-        );
-    }
 }
 
 impl DisparityOutputs {

@@ -4,6 +4,7 @@
 mod block_match;
 mod disparity_range;
 mod features;
+mod fill_disparity;
 mod hsv_markers;
 mod match_features;
 mod matcher;
@@ -13,6 +14,7 @@ mod triangulate;
 pub use block_match::BlockMatch;
 pub use disparity_range::{DisparityRange, DisparityRangeInputs, DisparityRangeOutputs};
 pub use features::{Detector, Features, FeaturesInputs, FeaturesOutputs};
+pub use fill_disparity::{FillDisparity, FillDisparityInputs, FillDisparityOutputs};
 pub use hsv_markers::{BLOB_COLUMNS, HsvMarkers, HsvMarkersInputs, HsvMarkersOutputs};
 pub use match_features::{MatchFeatures, MatchFeaturesInputs, MatchFeaturesOutputs};
 pub use matcher::{DisparityOutputs, MatcherInputs, MatcherParams, Refine};

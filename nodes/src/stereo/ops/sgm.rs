@@ -1,6 +1,6 @@
 //! `stereo.sgm`: semi-global matching of a rectified pair.
 
-use super::matcher::{DisparityOutputs, MatcherInputs, MatcherParams, fill_holes};
+use super::matcher::{DisparityOutputs, MatcherInputs, MatcherParams};
 use crate::stereo::{
     MatchCost, Paths, SgmConfig, SgmParams, check_bt_window, check_census_window, check_penalties,
     sgm_disparity,
@@ -115,8 +115,7 @@ impl RunOp for Sgm {
             .matcher
             .range(inputs.min_disparity, inputs.max_disparity, left.width)?;
         let config = self.config()?;
-        let mut data = sgm_disparity(&left, &right, range, &config).map_err(OpError::invalid)?;
-        fill_holes(&self.matcher, &mut data, &left, ctx);
+        let data = sgm_disparity(&left, &right, range, &config).map_err(OpError::invalid)?;
         DisparityOutputs::new(data, left.width, left.height, range, ctx)
     }
 }
@@ -125,7 +124,7 @@ impl RunOp for Sgm {
 mod tests {
     use super::super::testing::{ctx, defaults};
     use super::*;
-    use fusegraph_engine::value::{Disparity, Image, Pixels};
+    use fusegraph_engine::value::{Image, Pixels};
 
     fn grey(w: usize, h: usize) -> Arc<Image> {
         let data: Vec<u8> = (0..w * h).map(|i| (i * 37 % 251) as u8).collect();
@@ -175,34 +174,5 @@ mod tests {
         assert!(e.contains("wider than the image"), "{e}");
         let out = run_sgm(grey(40, 30), grey(40, 30), 0, 15).unwrap();
         assert_eq!((out.disparity.width, out.disparity.height), (40, 30));
-    }
-
-    #[test]
-    fn the_fill_runs_after_matching_when_asked() {
-        let mut op: Sgm = defaults();
-        op.matcher.max_disparity_px = 15;
-        let inputs = || MatcherInputs {
-            left: grey(64, 48),
-            right: grey(64, 48),
-            min_disparity: None,
-            max_disparity: None,
-        };
-        let mut plain = ctx();
-        let before = op.run(inputs(), &mut plain).unwrap();
-        assert!(!plain.into_metrics().contains_key("filled_pct"));
-        op.matcher.fill_sigma_px = 8.0;
-        op.matcher.fill_min_support = 0.1;
-        let mut filling = ctx();
-        let after = op.run(inputs(), &mut filling).unwrap();
-        let valid = |d: &Disparity| d.data.iter().filter(|v| !v.is_nan()).count();
-        let filled = filling.into_metrics()["filled_pct"];
-        assert!(
-            valid(&after.disparity) >= valid(&before.disparity),
-            "{} -> {}",
-            valid(&before.disparity),
-            valid(&after.disparity)
-        );
-        let added = valid(&after.disparity) - valid(&before.disparity);
-        assert_eq!(filled, 100.0 * added as f64 / (64.0 * 48.0));
     }
 }

@@ -63,8 +63,7 @@ pub fn fill_disparity(disparity: &mut [f32], guide: &GreyImage, p: &FillParams) 
     let valid = |d: f32| !d.is_nan();
     let grey = p.sigma_px / p.sigma_grey.max(1e-6);
     let depth = p.sigma_px / p.sigma_disparity_px.max(1e-6);
-    // Distance between a pixel and its predecessor along x (row-major) and
-    // along y (stored transposed, so columns are rows).
+    // The domain transform's distance between neighbouring pixels a and b.
     let step = |a: usize, b: usize| {
         let di = (guide.data[a] as f32 - guide.data[b] as f32).abs();
         let (da, db) = (disparity[a], disparity[b]);
@@ -75,6 +74,8 @@ pub fn fill_disparity(disparity: &mut [f32], guide: &GreyImage, p: &FillParams) 
         };
         1.0 + grey * di + depth * dd
     };
+    // Distance between a pixel and its predecessor along x, and along y,
+    // both row-major.
     let mut along_x = vec![1.0f32; w * h];
     along_x.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         for (x, d) in row.iter_mut().enumerate().skip(1) {
@@ -82,25 +83,29 @@ pub fn fill_disparity(disparity: &mut [f32], guide: &GreyImage, p: &FillParams) 
         }
     });
     let mut along_y = vec![1.0f32; w * h];
-    along_y.par_chunks_mut(h).enumerate().for_each(|(x, col)| {
-        for (y, d) in col.iter_mut().enumerate().skip(1) {
-            *d = step(y * w + x, (y - 1) * w + x);
-        }
-    });
+    along_y
+        .par_chunks_mut(w)
+        .enumerate()
+        .skip(1)
+        .for_each(|(y, row)| {
+            for (x, d) in row.iter_mut().enumerate() {
+                *d = step(y * w + x, (y - 1) * w + x);
+            }
+        });
     let mut num: Vec<f32> = disparity
         .iter()
         .map(|&d| if valid(d) { d } else { 0.0 })
         .collect();
     let mut den: Vec<f32> = disparity.iter().map(|&d| valid(d) as u8 as f32).collect();
     let n = ITERATIONS;
+    let mut weights = vec![0.0f32; w * h];
     for i in 0..n {
         let sigma = p.sigma_px * 3f32.sqrt() * 2f32.powi(n - i - 1) / (4f32.powi(n) - 1.0).sqrt();
         let log_a = -(2f32.sqrt()) / sigma;
-        recursive_rows(&mut num, &mut den, &along_x, w, log_a);
-        let (mut num_t, mut den_t) = (transpose(&num, w, h), transpose(&den, w, h));
-        recursive_rows(&mut num_t, &mut den_t, &along_y, h, log_a);
-        num = transpose(&num_t, h, w);
-        den = transpose(&den_t, h, w);
+        exp_weights(&along_x, log_a, &mut weights);
+        along_rows(&mut num, &mut den, &weights, w);
+        exp_weights(&along_y, log_a, &mut weights);
+        along_columns(&mut num, &mut den, &weights, w);
     }
     let mut filled = 0;
     for ((d, &nu), &de) in disparity.iter_mut().zip(&num).zip(&den) {
@@ -117,45 +122,64 @@ pub fn fill_disparity(disparity: &mut [f32], guide: &GreyImage, p: &FillParams) 
     filled
 }
 
-/// One horizontal pass of the recursive filter, both directions, over every
-/// row of `a` and `b` (`width` wide) at once: J[x] += w[x] (J[x-1] - J[x]),
-/// then the same from the right, with w = exp(log_a * distance).
-fn recursive_rows(a: &mut [f32], b: &mut [f32], distance: &[f32], width: usize, log_a: f32) {
+/// `out[i] = exp(log_a * distance[i])`: the recursive filter's feedback
+/// weights.
+fn exp_weights(distance: &[f32], log_a: f32, out: &mut [f32]) {
+    out.par_chunks_mut(4096)
+        .zip(distance.par_chunks(4096))
+        .for_each(|(o, d)| {
+            for (o, &d) in o.iter_mut().zip(d) {
+                *o = (log_a * d).exp();
+            }
+        });
+}
+
+/// One pass of the recursive filter along every row of `a` and `b`
+/// (`width` wide), both directions: J[x] += w[x] (J[x-1] - J[x]), then the
+/// same from the right. Rows run in parallel.
+fn along_rows(a: &mut [f32], b: &mut [f32], weights: &[f32], width: usize) {
     a.par_chunks_mut(width)
         .zip(b.par_chunks_mut(width))
-        .zip(distance.par_chunks(width))
-        .for_each(|((ra, rb), rd)| {
-            let weights: Vec<f32> = rd.iter().map(|&d| (log_a * d).exp()).collect();
+        .zip(weights.par_chunks(width))
+        .for_each(|((ra, rb), rw)| {
             for x in 1..width {
-                let k = weights[x];
+                let k = rw[x];
                 ra[x] += k * (ra[x - 1] - ra[x]);
                 rb[x] += k * (rb[x - 1] - rb[x]);
             }
             for x in (0..width.saturating_sub(1)).rev() {
-                let k = weights[x + 1];
+                let k = rw[x + 1];
                 ra[x] += k * (ra[x + 1] - ra[x]);
                 rb[x] += k * (rb[x + 1] - rb[x]);
             }
         });
 }
 
-/// `src` (`w x h`, row-major) transposed to `h x w`.
-fn transpose(src: &[f32], w: usize, h: usize) -> Vec<f32> {
-    let mut out = vec![0.0f32; w * h];
-    const TILE: usize = 32;
-    out.par_chunks_mut(h * TILE)
-        .enumerate()
-        .for_each(|(tile, block)| {
-            let x0 = tile * TILE;
-            for y0 in (0..h).step_by(TILE) {
-                for x in x0..(x0 + TILE).min(w) {
-                    for y in y0..(y0 + TILE).min(h) {
-                        block[(x - x0) * h + y] = src[y * w + x];
-                    }
-                }
-            }
-        });
-    out
+/// The same down and up every column, a whole row at a time (the inner
+/// loop runs along the row and vectorises; rows depend on each other).
+fn along_columns(a: &mut [f32], b: &mut [f32], weights: &[f32], width: usize) {
+    let h = a.len() / width.max(1);
+    // Row `to` moves towards row `from` by the weights of row `link`.
+    let step = |v: &mut [f32], to: usize, from: usize, link: usize| {
+        let k = &weights[link * width..(link + 1) * width];
+        let (lo, hi) = v.split_at_mut(to.max(from) * width);
+        let (t, f) = if to > from {
+            (&mut hi[..width], &lo[from * width..(from + 1) * width])
+        } else {
+            (&mut lo[to * width..(to + 1) * width], &hi[..width])
+        };
+        for ((t, &f), &k) in t.iter_mut().zip(f).zip(k) {
+            *t += k * (f - *t);
+        }
+    };
+    for y in 1..h {
+        step(a, y, y - 1, y);
+        step(b, y, y - 1, y);
+    }
+    for y in (0..h.saturating_sub(1)).rev() {
+        step(a, y, y + 1, y + 1);
+        step(b, y, y + 1, y + 1);
+    }
 }
 
 #[cfg(test)]
@@ -178,19 +202,6 @@ mod tests {
             height: h,
             data: vec![100; w * h],
         }
-    }
-
-    #[test]
-    fn transposes_any_shape() {
-        let (w, h) = (37, 70);
-        let src: Vec<f32> = (0..w * h).map(|i| i as f32).collect();
-        let t = transpose(&src, w, h);
-        for y in 0..h {
-            for x in 0..w {
-                assert_eq!(t[x * h + y], src[y * w + x]);
-            }
-        }
-        assert_eq!(transpose(&t, h, w), src);
     }
 
     #[test]

@@ -38,7 +38,8 @@ pub struct FillParams {
     /// weight there is at least this (0..1; a hole's share is below 1, so
     /// 1 fills none).
     pub min_support: f32,
-    /// Whether valid pixels take the filtered value too (smoothing), or
+    /// Whether valid pixels take the filtered value too (smoothing; one
+    /// it would move by more than `sigma_disparity_px` keeps its own), or
     /// only holes are filled.
     pub smooth: bool,
 }
@@ -110,9 +111,13 @@ pub fn fill_disparity(disparity: &mut [f32], guide: &GreyImage, p: &FillParams) 
     let mut filled = 0;
     for ((d, &nu), &de) in disparity.iter_mut().zip(&num).zip(&den) {
         if valid(*d) {
-            // A valid pixel's own weight is in its sum: `de` > 0.
-            if p.smooth && de > 0.0 {
-                *d = nu / de;
+            // A valid pixel's own weight is in its sum: `de` > 0. Smoothing
+            // moves a disparity by its noise; a neighbourhood that would
+            // move it further disagrees with it (mismatches around it, as
+            // under heavy sensor noise), and it keeps its own value.
+            let smoothed = nu / de;
+            if p.smooth && de > 0.0 && (smoothed - *d).abs() <= p.sigma_disparity_px {
+                *d = smoothed;
             }
         } else if de >= p.min_support && de > 0.0 {
             filled += 1;
@@ -290,6 +295,32 @@ mod tests {
                 .filter(|v| !v.is_nan())
                 .all(|&v| (v - 12.0).abs() < 1e-4)
         );
+    }
+
+    #[test]
+    fn a_valid_disparity_far_from_its_neighbourhood_keeps_its_value() {
+        // Half the pixels say 10 px and half 30 px, interleaved (a
+        // mismatched neighbourhood): smoothing would land near 20 for all,
+        // more than sigma_disparity_px from each, so each keeps its value.
+        let (w, h) = (20, 20);
+        let mut d: Vec<f32> = (0..w * h)
+            .map(|i| if (i % w + i / w) % 2 == 0 { 10.0 } else { 30.0 })
+            .collect();
+        let before = d.clone();
+        let p = FillParams {
+            sigma_disparity_px: 1000.0,
+            ..params()
+        };
+        // With the jumps not stopping it (huge sigma_disparity_px) values
+        // do move...
+        fill_disparity(&mut d, &flat_guide(w, h), &p);
+        assert!((d[0] - 10.0).abs() > 5.0);
+        // ...with 2 px they stay within 2 px of their own.
+        let mut d = before.clone();
+        fill_disparity(&mut d, &flat_guide(w, h), &params());
+        for (a, b) in d.iter().zip(&before) {
+            assert!((a - b).abs() <= 2.0, "{b} -> {a}");
+        }
     }
 
     #[test]

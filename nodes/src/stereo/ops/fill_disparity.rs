@@ -12,7 +12,7 @@ use fusegraph_engine::value::{Disparity, Image};
 /// surface (normalised convolution, edge-aware along the left image and the
 /// disparities' own steps) -> Disparity
 #[derive(Debug, Clone, PartialEq, Op)]
-#[op(name = "stereo.fill_disparity", version = 1)]
+#[op(name = "stereo.fill_disparity", version = 2)]
 pub struct FillDisparity {
     /// Reach of the filter (its standard deviation on an edge-free image)
     #[param(default = 16.0, unit = "px", min = 0.001, max = 1000.0)]
@@ -29,7 +29,8 @@ pub struct FillDisparity {
     /// filter's weight (1: no hole is filled, only smoothing)
     #[param(default = 0.5, min = 0.0, max = 1.0)]
     pub min_support: f64,
-    /// Valid disparities take the filtered value too (smoothing)
+    /// Valid disparities take the filtered value too (smoothing), unless it
+    /// would move them by more than sigma_disparity_px
     #[param(default = true)]
     pub smooth: bool,
 }

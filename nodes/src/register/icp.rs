@@ -437,11 +437,17 @@ mod tests {
         assert!(r.rmse_mm < 0.2, "{}", r.rmse_mm);
     }
 
-    #[test]
-    fn landmarks_pin_the_turn_a_symmetric_surface_cannot() {
-        // A spherical cap: turning it about its axis moves no point off the
-        // surface, so surface pairs alone leave that turn where it starts.
-        // Three landmarks on the cap fix it.
+    /// A spherical cap (radius 60 mm, above z = 10 mm) with its normals
+    /// and k-d tree, the turn of 0.2 rad about its axis, and the cap turned
+    /// back by it (the source that turn registers onto the cap).
+    #[allow(clippy::type_complexity)]
+    fn turned_cap() -> (
+        Vec<Point3<f64>>,
+        Vec<Vector3<f64>>,
+        Nearest,
+        Isometry3<f64>,
+        Vec<Point3<f64>>,
+    ) {
         let cap: Vec<Point3<f64>> = (0..4000)
             .map(|k| {
                 let (u, v) = ((k % 80) as f64 / 80.0, (k / 80) as f64 / 50.0);
@@ -458,6 +464,15 @@ mod tests {
         let tree = Nearest::new(&cap).unwrap();
         let truth = Isometry3::new(Vector3::zeros(), Vector3::new(0.0, 0.0, 0.2));
         let source: Vec<Point3<f64>> = cap.iter().map(|p| truth.inverse() * p).collect();
+        (cap, normals, tree, truth, source)
+    }
+
+    #[test]
+    fn landmarks_pin_the_turn_a_symmetric_surface_cannot() {
+        // A spherical cap: turning it about its axis moves no point off the
+        // surface, so surface pairs alone leave that turn where it starts.
+        // Three landmarks on the cap fix it.
+        let (cap, normals, tree, truth, source) = turned_cap();
         let landmarks = [cap[7], cap[1500], cap[2900]];
         let anchors = Anchors {
             source: landmarks.iter().map(|p| truth.inverse() * p).collect(),
@@ -519,22 +534,7 @@ mod tests {
         // its target on the surface (the gel under it): fitted in full they
         // pull the cap off along the normals; fitted across the normal only
         // they fix the turn and leave the surface's fit alone.
-        let cap: Vec<Point3<f64>> = (0..4000)
-            .map(|k| {
-                let (u, v) = ((k % 80) as f64 / 80.0, (k / 80) as f64 / 50.0);
-                let (theta, phi) = (u * std::f64::consts::TAU, 0.15 + 0.9 * v);
-                Point3::new(
-                    60.0 * phi.sin() * theta.cos(),
-                    60.0 * phi.sin() * theta.sin(),
-                    60.0 * phi.cos(),
-                )
-            })
-            .filter(|p| p.z > 10.0)
-            .collect();
-        let normals: Vec<Vector3<f64>> = cap.iter().map(|p| p.coords.normalize()).collect();
-        let tree = Nearest::new(&cap).unwrap();
-        let truth = Isometry3::new(Vector3::zeros(), Vector3::new(0.0, 0.0, 0.2));
-        let source: Vec<Point3<f64>> = cap.iter().map(|p| truth.inverse() * p).collect();
+        let (cap, normals, tree, truth, source) = turned_cap();
         let on_skin = [cap[7], cap[1500], cap[2900]];
         let faces: Vec<Point3<f64>> = on_skin
             .iter()

@@ -584,8 +584,9 @@ mod tests {
             turn < 0.01 && off < 0.01,
             "across the normal: {turn} deg, {off} mm off"
         );
+        // In full, the 3 mm offsets pull the cap 1.6 mm off (weight 1).
         let (turn, off) = run(false);
-        assert!(off > 0.5 || turn > 0.5, "in full: {turn} deg, {off} mm off");
+        assert!(off > 1.0, "in full: {turn} deg, {off} mm off");
     }
 
     #[test]

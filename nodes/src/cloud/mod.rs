@@ -1,11 +1,13 @@
 //! Point clouds (helpers of the paper's module D): nearest-neighbour search,
 //! sampling a mesh, voxel downsampling, normals by local PCA, removing the
-//! table under an object and the points near a colour; and the `cloud.*` ops.
+//! table under an object and the points near a colour, telling markers on
+//! the skin from things off it; and the `cloud.*` ops.
 
 mod colour_filter;
 pub(crate) mod convert;
 mod nearest;
 mod normals;
+mod on_surface;
 pub mod ops;
 mod plane;
 mod sample;
@@ -14,6 +16,7 @@ mod voxel;
 pub use colour_filter::away_from_colour;
 pub use nearest::Nearest;
 pub use normals::estimate_normals;
+pub use on_surface::{OnSurface, SurfaceTest, markers_on_surface};
 pub use plane::{Plane, dominant_plane, off_table};
 pub use sample::{bumpy_ellipsoid, sample_mesh, sample_mesh_with_normals};
 pub use voxel::voxel_downsample;
@@ -27,6 +30,7 @@ pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.add::<ops::Downsample>()?;
     registry.add::<ops::RemovePlane>()?;
     registry.add::<ops::RemoveColour>()?;
+    registry.add::<ops::MarkersOnSurface>()?;
     registry.add::<ops::Normals>()?;
     registry.add::<ops::TransformCloud>()?;
     Ok(())

@@ -5,6 +5,7 @@
 pub(crate) mod convert;
 pub(crate) mod figures;
 mod icp;
+mod marker_merge;
 mod match_markers;
 mod multiview;
 pub mod ops;
@@ -14,11 +15,9 @@ mod targets;
 pub use icp::{
     Anchors, IcpMethod, IcpParams, IcpResult, IcpStep, Kernel, icp, icp_anchored, normals_near,
 };
+pub use marker_merge::{DroppedSighting, MergeParams, MergedMarker, merge_markers};
 pub use match_markers::{MarkerMatch, match_markers};
-pub use multiview::{
-    MarkerAnchoring, MergedMarker, Multiview, View, merge_markers, poses_from_markers,
-    register_views,
-};
+pub use multiview::{MarkerAnchoring, Multiview, View, poses_from_markers, register_views};
 pub use procrustes::{Similarity, umeyama};
 pub use targets::map_targets;
 

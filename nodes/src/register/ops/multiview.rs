@@ -4,8 +4,8 @@ use crate::cloud::convert::{cloud_normals, cloud_points, make_cloud};
 use crate::cloud::estimate_normals;
 use crate::register::convert::{marker_points, markers_value, transform_isometry};
 use crate::register::{
-    IcpMethod, IcpParams, Kernel, MarkerAnchoring, View, merge_markers, poses_from_markers,
-    register_views,
+    IcpMethod, IcpParams, Kernel, MarkerAnchoring, MergeParams, View, merge_markers,
+    poses_from_markers, register_views,
 };
 use fusegraph_engine::Inputs;
 use fusegraph_engine::typed::declaration::{
@@ -20,7 +20,7 @@ pub const MAX_VIEWS: usize = 8;
 
 /// Several camera clouds (and their markers) with rough poses -> one cloud and one marker set: pairwise ICP around the ring, then global adjustment
 #[derive(Op)]
-#[op(name = "register.multiview", version = 4)]
+#[op(name = "register.multiview", version = 5)]
 pub struct Multiview {
     /// ICP: pairs farther apart are ignored
     #[param(default = 8.0, unit = "mm", min = 1e-3)]
@@ -46,6 +46,9 @@ pub struct Multiview {
     /// Marker sightings from different views closer than this are one marker
     #[param(default = 4.0, unit = "mm", min = 0.0)]
     pub merge_mm: f64,
+    /// A sighting farther than this from the median of a marker's sightings (seen in 3 views or more) is dropped, as is a marker seen once within twice merge_mm of one seen more often: a marker partly hidden or cut by a highlight is measured off
+    #[param(default = 2.5, unit = "mm", min = 0.0)]
+    pub outlier_mm: f64,
     /// Neighbours for normals of clouds without them
     #[param(default = 12, min = 3, max = 200)]
     pub normals_k: usize,
@@ -158,6 +161,8 @@ impl RunOp for Multiview {
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
         let k = self.normals_k;
         let (mut views, mut rough, mut markers) = (Vec::new(), Vec::new(), Vec::new());
+        // Each view's input port and its markers' ids, for notes.
+        let (mut ports, mut marker_ids) = (Vec::new(), Vec::new());
         let mut frame = String::new();
         for (i, view) in inputs.views.into_iter().enumerate() {
             let seen = view.markers;
@@ -171,6 +176,8 @@ impl RunOp for Multiview {
                             m.frame, c.frame
                         )));
                     }
+                    ports.push(i);
+                    marker_ids.push(seen.as_ref().map(|m| m.ids.to_vec()).unwrap_or_default());
                     markers.push(seen.map(|m| marker_points(&m)));
                     if frame.is_empty() {
                         frame = c.frame.clone();
@@ -242,12 +249,25 @@ impl RunOp for Multiview {
             }
             OutputFrame::World => "world".to_string(),
         };
-        let sightings: Vec<(Vec<Point3<f64>>, Isometry3<f64>)> = markers
+        let (seen_in, sightings): (Vec<usize>, Vec<(Vec<Point3<f64>>, Isometry3<f64>)>) = markers
             .into_iter()
             .zip(&m.poses)
-            .filter_map(|(seen, pose)| seen.map(|s| (s, *pose)))
-            .collect();
-        let merged = merge_markers(&sightings, self.merge_mm);
+            .enumerate()
+            .filter_map(|(v, (seen, pose))| seen.map(|s| (v, (s, *pose))))
+            .unzip();
+        let params = MergeParams {
+            merge_mm: self.merge_mm,
+            outlier_mm: self.outlier_mm,
+        };
+        let (merged, dropped) = merge_markers(&sightings, &params);
+        for d in &dropped {
+            ctx.note(format!(
+                "view {}: marker {} dropped, {:.1} mm from where the other views put it \
+                 (partly hidden, or cut by a highlight?)",
+                ports[seen_in[d.set]], marker_ids[seen_in[d.set]][d.marker], d.off_mm
+            ));
+        }
+        ctx.metric("sightings_dropped", dropped.len() as f64);
         ctx.metric("markers", merged.len() as f64);
         ctx.metric(
             "marker_spread_max_mm",

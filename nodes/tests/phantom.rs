@@ -586,6 +586,12 @@ fn moved_targets_are_the_field_applied_to_the_scanned_ones() {
     // The truth reads back with its field (JSON keeps 17 digits; the parser
     // may round the last bit).
     let back = GroundTruth::load(&sagged_phantom().0.join("ground_truth.json")).unwrap();
+    // The conditions in force are recorded with it, by parameter name.
+    let conditions = back.conditions.expect("the conditions recorded");
+    assert_eq!(conditions["motion"], "sag");
+    assert_eq!(conditions["motion_peak_mm"], 10.0);
+    assert_eq!(conditions["jpeg_quality"], 0);
+    assert_eq!(conditions["conditions"], "ideal");
     let back = back.motion.expect("the field read back");
     assert_eq!((back.kind, back.peak_mm), (field.kind, field.peak_mm));
     let probe = Point3::new(10.0, -20.0, 30.0);

@@ -128,6 +128,7 @@ pub(crate) fn test_truth() -> GroundTruth {
         shape,
         motion: None,
         props: Vec::new(),
+        conditions: None,
     }
 }
 

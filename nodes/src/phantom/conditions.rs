@@ -15,6 +15,7 @@ use crate::camera::CameraModel;
 use fusegraph_engine::typed::declared_defaults;
 use fusegraph_plugin_api::derive::{Choice, Params};
 use nalgebra::{Point3, Vector3};
+use std::collections::BTreeMap;
 
 /// Named sets of conditions.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Choice)]
@@ -225,6 +226,48 @@ impl Conditions {
             distractors,
             occluder,
         )
+    }
+
+    /// Every condition by its parameter name (with its unit), for the ground
+    /// truth; `None` for the ideal phantom, whose truth file stays as it was.
+    pub fn record(&self) -> Option<BTreeMap<String, serde_json::Value>> {
+        if *self == Conditions::default() {
+            return None;
+        }
+        macro_rules! record {
+            ($($field:ident),* $(,)?) => {
+                BTreeMap::from([$((stringify!($field).to_string(), serde_json::json!(self.$field)),)*])
+            };
+        }
+        let mut r = record!(
+            motion_peak_mm,
+            motion_direction_deg,
+            lamp_intensities,
+            lamp_kelvin,
+            ambient,
+            white_balance_kelvin,
+            specular,
+            shininess,
+            shadows,
+            f_number,
+            focus_mm,
+            exposure_stops,
+            read_noise_dn,
+            full_well_e,
+            vignetting,
+            bayer,
+            jpeg_quality,
+            skin_texture_pct,
+            distractors,
+            occluder,
+        );
+        r.insert("conditions".into(), self.conditions.name().into());
+        r.insert("motion".into(), self.motion.name().into());
+        r.insert(
+            "lamp_positions_mm".into(),
+            serde_json::json!(self.lamp_positions_mm.0),
+        );
+        Some(r)
     }
 
     /// Problems with the lamp lists, by parameter name.

@@ -340,6 +340,7 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
         shape,
         motion: (!motion.is_still()).then_some(motion.clone()),
         props,
+        conditions: c.record(),
     };
     let truth_file = dir.join("ground_truth.json");
     truth.save(&truth_file).map_err(|e| io(&truth_file, e))?;

@@ -62,6 +62,11 @@ pub struct GroundTruth {
     /// tool), world frame.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub props: Vec<Prop>,
+    /// The acquisition conditions in force (light, lens, sensor, texture,
+    /// motion, scene), by `phantom.generate`'s parameter names; absent for
+    /// the ideal phantom.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub conditions: Option<std::collections::BTreeMap<String, serde_json::Value>>,
 }
 
 /// The MRI series geometry and contrast.

@@ -7,7 +7,9 @@ use super::pair::{DisparityRange, GreyImage, check_pair};
 use super::refine::{RefineParams, refine_disparity};
 use super::select::SelectParams;
 use super::sgm::{SgmParams, aggregate_and_select};
-use super::texture::{flat_windows, noise_sigma};
+use super::texture::{
+    census_prefilter_sigma_px, flat_windows, noise_sigma, pair_noise_dn, smoothed,
+};
 
 /// The pixel matching cost semi-global matching aggregates.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -51,6 +53,10 @@ pub struct SgmConfig {
     /// Invalidate pixels whose census window's grey-level spread is below this
     /// multiple of the image's own noise level (no texture to match; 0 = off).
     pub min_texture_snr: f64,
+    /// Census costs on a noisy pair: measure its noise from the first
+    /// matches ([`pair_noise_dn`]) and, where it calls for smoothing
+    /// ([`census_prefilter_sigma_px`]), match again on the smoothed pair.
+    pub denoise: bool,
 }
 
 impl Default for SgmConfig {
@@ -92,6 +98,7 @@ impl Default for SgmConfig {
                 max_change_px: 1.0,
             }),
             min_texture_snr: 0.0,
+            denoise: true,
         }
     }
 }
@@ -186,10 +193,24 @@ pub fn sgm_disparity(
     let (mut disparity, t1) = match config.cost {
         MatchCost::Census { width, height } => {
             check_census_window(width, height)?;
-            let costs = CensusCosts::new(left, right, range, width, height);
-            let t1 = std::time::Instant::now();
-            let d = aggregate_and_select(&costs, &config.sgm, Some(left), &config.select);
-            (d, t1)
+            let census = |l: &GreyImage, r: &GreyImage| {
+                let costs = CensusCosts::new(l, r, range, width, height);
+                aggregate_and_select(&costs, &config.sgm, Some(l), &config.select)
+            };
+            let d = census(left, right);
+            let sigma = config
+                .denoise
+                .then(|| pair_noise_dn(left, right, &d))
+                .flatten()
+                .map_or(0.0, census_prefilter_sigma_px);
+            let d = if sigma > 0.0 {
+                let (l, r) = rayon::join(|| smoothed(left, sigma), || smoothed(right, sigma));
+                tracing::debug!("sgm: a noisy pair, matched again smoothed by {sigma:.2} px");
+                census(&l, &r)
+            } else {
+                d
+            };
+            (d, std::time::Instant::now())
         }
         MatchCost::BirchfieldTomasi { window } => {
             check_bt_window(window)?;
@@ -320,7 +341,87 @@ mod tests {
             max_memory_mb: 1024,
             refine: None,
             min_texture_snr: 0.0,
+            denoise: true,
         }
+    }
+
+    /// A fronto-parallel plane at `disparity` px with a weak smooth random
+    /// texture (features of about 4 px, 40 grey levels peak to peak) and
+    /// white noise of `noise` grey levels on each image.
+    fn noisy_plane(w: usize, h: usize, disparity: usize, noise: f64) -> (GreyImage, GreyImage) {
+        let mut s = 99u64;
+        let mut uniform = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (gw, gh) = ((w + disparity) / 4 + 2, h / 4 + 2);
+        let grid: Vec<f64> = (0..gw * gh).map(|_| 108.0 + 40.0 * uniform()).collect();
+        let texture = |x: usize, y: usize| {
+            let (gx, gy) = (x as f64 / 4.0, y as f64 / 4.0);
+            let (i, j) = (gx as usize, gy as usize);
+            let (tx, ty) = (gx - i as f64, gy - j as f64);
+            let g = |i: usize, j: usize| grid[i + j * gw];
+            (g(i, j) * (1.0 - tx) + g(i + 1, j) * tx) * (1.0 - ty)
+                + (g(i, j + 1) * (1.0 - tx) + g(i + 1, j + 1) * tx) * ty
+        };
+        let mut image = |shift: usize| GreyImage {
+            width: w,
+            height: h,
+            data: (0..w * h)
+                .map(|i| {
+                    let n = (0..12).map(|_| uniform()).sum::<f64>() - 6.0;
+                    (texture(i % w + shift, i / w) + noise * n)
+                        .round()
+                        .clamp(0.0, 255.0) as u8
+                })
+                .collect(),
+        };
+        // left(x) = right(x - d): the right image sees the texture d px on.
+        let right = image(disparity);
+        let left = image(0);
+        (left, right)
+    }
+
+    #[test]
+    fn a_noisy_pair_is_matched_again_smoothed() {
+        let (w, h, d) = (160, 120, 12);
+        let (left, right) = noisy_plane(w, h, d, 12.0);
+        let range = DisparityRange::new(0, 31, w).unwrap();
+        let census = MatchCost::Census {
+            width: 9,
+            height: 7,
+        };
+        let run = |denoise: bool| {
+            let c = SgmConfig {
+                denoise,
+                ..config(census, Paths::Five, true)
+            };
+            let disparity = sgm_disparity(&left, &right, range, &c).unwrap();
+            let valid: Vec<f32> = disparity[..]
+                .chunks(w)
+                .flat_map(|row| row[40..w - 8].to_vec())
+                .filter(|v| v.is_finite())
+                .collect();
+            let right_px = valid
+                .iter()
+                .filter(|v| (**v - d as f32).abs() < 1.0)
+                .count();
+            (valid.len(), right_px)
+        };
+        let (raw, raw_right) = run(false);
+        let (smooth, smooth_right) = run(true);
+        let area = h * (w - 48);
+        assert!(
+            smooth as f64 > 0.95 * area as f64 && smooth as f64 > 1.3 * raw as f64,
+            "{raw} -> {smooth} of {area} px"
+        );
+        assert!(
+            smooth_right as f64 > 0.8 * smooth as f64
+                && smooth_right as f64 > 1.5 * raw_right as f64,
+            "right within 1 px: {raw_right} of {raw} -> {smooth_right} of {smooth}"
+        );
     }
 
     #[test]

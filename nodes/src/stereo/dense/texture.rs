@@ -4,7 +4,9 @@
 //! surroundings, which is right inside a surface but invents islands of depth
 //! in a blank background. The noise level comes from the image itself
 //! (Immerkaer, "Fast noise variance estimation", CVIU 1996), so the test adapts
-//! to each camera and exposure instead of a fixed grey-level threshold.
+//! to each camera and exposure instead of a fixed grey-level threshold. A
+//! pair's own residual at its matches measures its noise for the census
+//! cost's smoothing of noisy pairs.
 
 use super::pair::GreyImage;
 use rayon::prelude::*;
@@ -36,6 +38,64 @@ pub fn noise_sigma(img: &GreyImage) -> f64 {
         })
         .sum();
     (std::f64::consts::PI / 2.0).sqrt() * total / (6.0 * ((w - 2) * (h - 2)) as f64)
+}
+
+/// The noise of a rectified pair, grey levels per image, from its own
+/// photometric residual: left minus right at the matched `disparity` (px,
+/// NaN = none), its median absolute deviation (robust to occlusions and to an
+/// exposure offset) over sqrt 2. Unlike a one-image estimate it is blind to
+/// texture, and it sees the noise that resampling (rectification) has
+/// spread over neighbouring pixels. `None` with under 1,000 matched pixels.
+pub fn pair_noise_dn(left: &GreyImage, right: &GreyImage, disparity: &[f32]) -> Option<f64> {
+    let w = left.width;
+    let mut residuals: Vec<f32> = disparity
+        .iter()
+        .enumerate()
+        .filter_map(|(i, &d)| {
+            let (x, y) = (i % w, i / w);
+            let xr = x as f32 - d;
+            (d.is_finite() && xr >= 0.0 && xr < (w - 1) as f32).then(|| {
+                let x0 = xr as usize;
+                let t = xr - x0 as f32;
+                let r = right.at(x0, y) as f32 * (1.0 - t) + right.at(x0 + 1, y) as f32 * t;
+                left.at(x, y) as f32 - r
+            })
+        })
+        .collect();
+    if residuals.len() < 1000 {
+        return None;
+    }
+    let median = |v: &mut Vec<f32>| {
+        let mid = v.len() / 2;
+        *v.select_nth_unstable_by(mid, f32::total_cmp).1
+    };
+    let centre = median(&mut residuals);
+    let mut deviations: Vec<f32> = residuals.iter().map(|r| (r - centre).abs()).collect();
+    Some(1.4826 * median(&mut deviations) as f64 / std::f64::consts::SQRT_2)
+}
+
+/// The Gaussian smoothing (sigma, px) a census cost needs on a pair whose
+/// noise is `noise_dn` grey levels per image: a census bit compares two
+/// single pixels, so noise of a few grey levels flips the bits of weak
+/// texture and the matcher finds nothing unique. The sigma brings white
+/// noise down to 1 grey level (a 2D Gaussian of sigma s divides it by
+/// 2 s sqrt(pi)), at most 2 px so texture of a few px survives; none under
+/// 0.7 px (about 2.5 grey levels: clean pairs, Middlebury's among them, are
+/// matched as they are).
+pub fn census_prefilter_sigma_px(noise_dn: f64) -> f64 {
+    let sigma = noise_dn / (2.0 * std::f64::consts::PI.sqrt());
+    if sigma < 0.7 { 0.0 } else { sigma.min(2.0) }
+}
+
+/// `img` smoothed by a Gaussian of `sigma_px` (the `image` crate's).
+pub fn smoothed(img: &GreyImage, sigma_px: f64) -> GreyImage {
+    let buffer = image::GrayImage::from_raw(img.width as u32, img.height as u32, img.data.clone())
+        .expect("a grey image holds width x height bytes");
+    GreyImage {
+        width: img.width,
+        height: img.height,
+        data: image::imageops::blur(&buffer, sigma_px as f32).into_raw(),
+    }
 }
 
 /// For every pixel, whether the `win_w x win_h` window around it (clamped to
@@ -125,5 +185,93 @@ mod tests {
         };
         assert!(share(5..50) > 0.99, "{}", share(5..50));
         assert!(share(70..115) < 0.01, "{}", share(70..115));
+    }
+}
+
+#[cfg(test)]
+mod prefilter_tests {
+    use super::*;
+
+    /// A texture of `amplitude` grey levels shifted by `shift` px, with white
+    /// noise of `noise` grey levels added.
+    fn noisy(w: usize, h: usize, noise: f64, seed: u64, shift: usize, amplitude: f64) -> GreyImage {
+        let mut state = seed;
+        let mut gauss = || {
+            // Sum of 12 uniforms: a unit normal to a good approximation.
+            (0..12)
+                .map(|_| {
+                    state = state
+                        .wrapping_mul(6364136223846793005)
+                        .wrapping_add(1442695040888963407);
+                    (state >> 11) as f64 / (1u64 << 53) as f64
+                })
+                .sum::<f64>()
+                - 6.0
+        };
+        let texture = |x: usize, y: usize| {
+            128.0 + amplitude * ((x as f64 * 0.7).sin() * (y as f64 * 0.3).cos())
+        };
+        GreyImage {
+            width: w,
+            height: h,
+            data: (0..w * h)
+                .map(|i| {
+                    (texture(i % w + shift, i / w) + noise * gauss())
+                        .round()
+                        .clamp(0.0, 255.0) as u8
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn the_pair_residual_measures_the_noise_not_the_texture() {
+        // Left(x) = texture(x), right(x) = texture(x + 5): disparity 5.
+        let (w, h) = (160, 120);
+        for noise in [0.0, 4.0, 10.0] {
+            let (left, right) = (
+                noisy(w, h, noise, 1, 0, 60.0),
+                noisy(w, h, noise, 2, 5, 60.0),
+            );
+            let disparity = vec![5.0f32; w * h];
+            let measured = pair_noise_dn(&left, &right, &disparity).unwrap();
+            // Rounding noisy values to grey levels adds 0.29 in quadrature.
+            let expected = if noise > 0.0 {
+                (noise * noise + 1.0 / 12.0).sqrt()
+            } else {
+                0.0
+            };
+            assert!(
+                (measured - expected).abs() < 0.1 * expected + 0.15,
+                "{noise}: {measured}"
+            );
+        }
+        let small = noisy(20, 20, 1.0, 1, 0, 60.0);
+        assert_eq!(
+            pair_noise_dn(&small, &small, &[0.0; 400]),
+            None,
+            "too few matches"
+        );
+    }
+
+    #[test]
+    fn census_smooths_noisy_pairs_only() {
+        assert_eq!(census_prefilter_sigma_px(2.0), 0.0, "clean");
+        let s = census_prefilter_sigma_px(5.0);
+        assert!((s - 5.0 / 3.5449).abs() < 1e-3, "{s}");
+        assert_eq!(census_prefilter_sigma_px(40.0), 2.0, "capped");
+        // Smoothing white noise by that sigma leaves about 1 grey level.
+        let flat = noisy(200, 200, 5.0, 3, 0, 0.0);
+        let after = smoothed(&flat, census_prefilter_sigma_px(5.0));
+        let n = after.data.len() as f64;
+        let mean = after.data.iter().map(|&v| v as f64).sum::<f64>() / n;
+        let std = (after
+            .data
+            .iter()
+            .map(|&v| (v as f64 - mean).powi(2))
+            .sum::<f64>()
+            / n)
+            .sqrt();
+        assert!((std - 1.0).abs() < 0.3, "{std}");
     }
 }

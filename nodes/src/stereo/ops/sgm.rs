@@ -10,7 +10,7 @@ use fusegraph_engine::typed::prelude::*;
 /// Semi-global matching (census or Birchfield-Tomasi costs, 5 paths in one
 /// pass, or 4 or 8 in two) -> Disparity
 #[derive(Debug, Clone, PartialEq, Op)]
-#[op(name = "stereo.sgm", version = 6)]
+#[op(name = "stereo.sgm", version = 7)]
 pub struct Sgm {
     /// Range, selection and filters, as `stereo.block_match`.
     #[param(flatten)]
@@ -44,6 +44,12 @@ pub struct Sgm {
     /// multiple of the image noise (estimated from the image; 0 = off)
     #[param(default = 0.0, min = 0.0)]
     pub min_texture_snr: f64,
+    /// Census on a noisy pair: measure its noise from the residual at the
+    /// first matches and, above about 2.5 grey levels, match again with both
+    /// images smoothed by the Gaussian that brings it to 1 grey level (at
+    /// most 2 px); clean pairs are matched once, as they are
+    #[param(default = true)]
+    pub denoise: bool,
     /// Refuse when the cost volumes would need more memory than this
     #[param(default = 4096, unit = "MB", min = 1)]
     pub max_memory_mb: usize,
@@ -86,6 +92,7 @@ impl Sgm {
             max_memory_mb: self.max_memory_mb,
             refine: m.refine()?,
             min_texture_snr: self.min_texture_snr,
+            denoise: self.denoise,
         })
     }
 }

@@ -1,8 +1,8 @@
-//! Conversions between the engine's point cloud and mesh values (f32, flat)
-//! and the algorithms' points and vectors (f64), frames unchanged.
+//! Conversions between the engine's point cloud, mesh and marker values
+//! (flat) and the algorithms' points and vectors (f64), frames unchanged.
 
 use fusegraph_engine::OpError;
-use fusegraph_engine::value::{Mesh, PointCloud};
+use fusegraph_engine::value::{Markers, Mesh, PointCloud};
 use nalgebra::{Point3, Vector3};
 use std::sync::Arc;
 
@@ -62,4 +62,22 @@ pub(crate) fn make_cloud(
             .into()
     });
     PointCloud::new(p, colors, n, frame).map_err(|e| OpError::invalid(e.0))
+}
+
+/// Markers' positions, mm, in their frame.
+pub(crate) fn marker_points(m: &Markers) -> Vec<Point3<f64>> {
+    m.positions_mm
+        .chunks(3)
+        .map(|c| Point3::new(c[0], c[1], c[2]))
+        .collect()
+}
+
+/// A markers value of `points` (mm, in `frame`) with `ids`, one each.
+pub(crate) fn markers_value(
+    points: &[Point3<f64>],
+    ids: Vec<u32>,
+    frame: &str,
+) -> Result<Markers, OpError> {
+    let positions: Vec<f64> = points.iter().flat_map(|p| [p.x, p.y, p.z]).collect();
+    Markers::new(positions, ids, frame).map_err(|e| OpError::invalid(e.0))
 }

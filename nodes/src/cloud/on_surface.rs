@@ -14,7 +14,7 @@
 //!    its range) nearer the camera than the marker and the plane by more than
 //!    `min_front_mm`. A tool the matcher could not reconstruct (untextured)
 //!    leaves a hole here instead: the merge of the views drops the sighting it
-//!    puts off (`crate::register::merge_markers`).
+//!    puts off (`register.multiview`).
 //!
 //! Written here: a few lines over nalgebra and our plane fit.
 

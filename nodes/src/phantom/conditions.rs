@@ -129,6 +129,36 @@ impl Default for Conditions {
     }
 }
 
+/// Calls macro `$m` with the field name of every condition but the preset.
+macro_rules! every_condition {
+    ($m:ident) => {
+        $m!(
+            motion,
+            motion_peak_mm,
+            motion_direction_deg,
+            lamp_positions_mm,
+            lamp_intensities,
+            lamp_kelvin,
+            ambient,
+            white_balance_kelvin,
+            specular,
+            shininess,
+            shadows,
+            f_number,
+            focus_mm,
+            exposure_stops,
+            read_noise_dn,
+            full_well_e,
+            vignetting,
+            bayer,
+            jpeg_quality,
+            skin_texture_pct,
+            distractors,
+            occluder,
+        )
+    };
+}
+
 /// Direction towards the ideal phantom's one distant lamp, world frame.
 const IDEAL_LAMP: [f64; 3] = [0.45, -0.35, 0.82];
 
@@ -202,30 +232,7 @@ impl Conditions {
                 }
             };
         }
-        pick!(
-            motion,
-            motion_peak_mm,
-            motion_direction_deg,
-            lamp_positions_mm,
-            lamp_intensities,
-            lamp_kelvin,
-            ambient,
-            white_balance_kelvin,
-            specular,
-            shininess,
-            shadows,
-            f_number,
-            focus_mm,
-            exposure_stops,
-            read_noise_dn,
-            full_well_e,
-            vignetting,
-            bayer,
-            jpeg_quality,
-            skin_texture_pct,
-            distractors,
-            occluder,
-        )
+        every_condition!(pick)
     }
 
     /// Every condition by its parameter name (with its unit), for the ground
@@ -239,34 +246,8 @@ impl Conditions {
                 BTreeMap::from([$((stringify!($field).to_string(), serde_json::json!(self.$field)),)*])
             };
         }
-        let mut r = record!(
-            motion_peak_mm,
-            motion_direction_deg,
-            lamp_intensities,
-            lamp_kelvin,
-            ambient,
-            white_balance_kelvin,
-            specular,
-            shininess,
-            shadows,
-            f_number,
-            focus_mm,
-            exposure_stops,
-            read_noise_dn,
-            full_well_e,
-            vignetting,
-            bayer,
-            jpeg_quality,
-            skin_texture_pct,
-            distractors,
-            occluder,
-        );
+        let mut r = every_condition!(record);
         r.insert("conditions".into(), self.conditions.name().into());
-        r.insert("motion".into(), self.motion.name().into());
-        r.insert(
-            "lamp_positions_mm".into(),
-            serde_json::json!(self.lamp_positions_mm.0),
-        );
         Some(r)
     }
 

@@ -173,7 +173,7 @@ impl Default for ShapeParams {
 
 /// 3D points (x, y, z, e.g. mm) that a parameter gives as one flat list of
 /// numbers, whose length must be a multiple of 3.
-#[derive(Debug, Clone, PartialEq, Default)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize)]
 pub struct Triples(pub Vec<[f64; 3]>);
 
 impl std::ops::Deref for Triples {

@@ -3,27 +3,10 @@
 
 use super::Similarity;
 use crate::camera::{isometry_from_matrix, isometry_to_matrix};
-use fusegraph_engine::OpError;
-use fusegraph_engine::value::{Markers, Transform};
-use nalgebra::{Isometry3, Point3};
+use fusegraph_engine::value::Transform;
+use nalgebra::Isometry3;
 
-/// Markers' positions, mm, in their frame.
-pub(crate) fn marker_points(m: &Markers) -> Vec<Point3<f64>> {
-    m.positions_mm
-        .chunks(3)
-        .map(|c| Point3::new(c[0], c[1], c[2]))
-        .collect()
-}
-
-/// A markers value of `points` (mm, in `frame`) with `ids`, one each.
-pub(crate) fn markers_value(
-    points: &[Point3<f64>],
-    ids: Vec<u32>,
-    frame: &str,
-) -> Result<Markers, OpError> {
-    let positions: Vec<f64> = points.iter().flat_map(|p| [p.x, p.y, p.z]).collect();
-    Markers::new(positions, ids, frame).map_err(|e| OpError::invalid(e.0))
-}
+pub(crate) use crate::cloud::convert::{marker_points, markers_value};
 
 /// A Transform value's rigid part (its `from` frame -> its `to` frame).
 pub(crate) fn transform_isometry(t: &Transform) -> Isometry3<f64> {

@@ -27,6 +27,9 @@ pub struct DroppedSighting {
     pub off_mm: f64,
 }
 
+/// One view's markers (in its frame) and that view's pose.
+pub type ViewMarkers = (Vec<Point3<f64>>, Isometry3<f64>);
+
 /// How sightings merge.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MergeParams {
@@ -46,7 +49,7 @@ pub struct MergeParams {
 /// [`MergeParams::outlier_mm`]). Views are taken in order, so the result
 /// depends on nothing but the input.
 pub fn merge_markers(
-    sets: &[(Vec<Point3<f64>>, Isometry3<f64>)],
+    sets: &[ViewMarkers],
     params: &MergeParams,
 ) -> (Vec<MergedMarker>, Vec<DroppedSighting>) {
     // Each gathered marker: its sightings as (set, marker, position).

@@ -15,7 +15,7 @@ mod targets;
 pub use icp::{
     Anchors, IcpMethod, IcpParams, IcpResult, IcpStep, Kernel, icp, icp_anchored, normals_near,
 };
-pub use marker_merge::{DroppedSighting, MergeParams, MergedMarker, merge_markers};
+pub use marker_merge::{DroppedSighting, MergeParams, MergedMarker, ViewMarkers, merge_markers};
 pub use match_markers::{MarkerMatch, match_markers};
 pub use multiview::{MarkerAnchoring, Multiview, View, poses_from_markers, register_views};
 pub use procrustes::{Similarity, umeyama};

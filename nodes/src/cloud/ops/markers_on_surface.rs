@@ -1,10 +1,10 @@
 //! `cloud.markers_on_surface`: a view's markers that sit on its skin cloud,
 //! seen whole.
 
-use crate::cloud::convert::cloud_points;
+use super::MarkerColour;
+use crate::cloud::convert::{cloud_points, marker_points, markers_value};
 use crate::cloud::{SurfaceTest, markers_on_surface};
-use crate::register::convert::{marker_points, markers_value};
-use crate::stereo::{BlobParams, colour_mask};
+use crate::stereo::colour_mask;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Markers, PointCloud};
 
@@ -12,20 +12,9 @@ use fusegraph_engine::value::{Markers, PointCloud};
 #[derive(Debug, Clone, PartialEq, Op)]
 #[op(name = "cloud.markers_on_surface", version = 1)]
 pub struct MarkersOnSurface {
-    /// Hue range [min, max] of the markers' colour, whose points are not skin; min > max wraps through 0 (default: the markers' green, as stereo.hsv_markers)
-    #[param(
-        default = [BlobParams::default().hue_deg.0, BlobParams::default().hue_deg.1],
-        unit = "deg",
-        min = 0.0,
-        max = 360.0
-    )]
-    pub hue_deg: [f64; 2],
-    /// Smallest saturation of the markers' colour (0..1)
-    #[param(default = BlobParams::default().min_saturation, min = 0.0, max = 1.0)]
-    pub min_saturation: f64,
-    /// Smallest value of the markers' colour (0..1)
-    #[param(default = BlobParams::default().min_value, min = 0.0, max = 1.0)]
-    pub min_value: f64,
+    /// The markers' colour, whose points are not skin
+    #[param(flatten)]
+    pub colour: MarkerColour,
     /// Radius of the skin patch around a marker (beyond the hole its face and walls leave in the cloud)
     #[param(default = SurfaceTest::default().support_radius_mm, unit = "mm", min = 1e-3)]
     pub support_radius_mm: f64,
@@ -93,12 +82,7 @@ impl RunOp for MarkersOnSurface {
         let points = marker_points(&markers);
         let mut skin = cloud_points(&cloud);
         if let Some(rgb) = &cloud.colors {
-            let colour = BlobParams {
-                hue_deg: (self.hue_deg[0], self.hue_deg[1]),
-                min_saturation: self.min_saturation,
-                min_value: self.min_value,
-                ..Default::default()
-            };
+            let colour = self.colour.blob_params();
             let mut coloured = colour_mask(rgb, &colour).into_iter();
             skin.retain(|_| !coloured.next().unwrap_or(false));
         }
@@ -140,18 +124,8 @@ mod tests {
 
     fn run(markers: Markers, cloud: PointCloud) -> Result<(Markers, Vec<String>), OpError> {
         let mut ctx = RunCtx::new("on_skin", &std::env::temp_dir());
-        let op = MarkersOnSurface {
-            hue_deg: [90.0, 170.0],
-            min_saturation: 0.45,
-            min_value: 0.12,
-            support_radius_mm: 20.0,
-            min_sides: 5,
-            max_off_surface_mm: 10.0,
-            plane_tolerance_mm: 3.0,
-            occluder_radius_mm: 10.0,
-            min_front_mm: 8.0,
-            min_hidden_fraction: 0.02,
-        };
+        let op: MarkersOnSurface = fusegraph_engine::typed::declared_defaults().unwrap();
+        assert_eq!(op.test(), SurfaceTest::default());
         let inputs = MarkersOnSurfaceInputs {
             markers: Arc::new(markers),
             cloud: Arc::new(cloud),

@@ -4,7 +4,7 @@ use crate::cloud::convert::{cloud_normals, cloud_points, make_cloud};
 use crate::cloud::estimate_normals;
 use crate::register::convert::{marker_points, markers_value, transform_isometry};
 use crate::register::{
-    IcpMethod, IcpParams, Kernel, MarkerAnchoring, MergeParams, View, merge_markers,
+    IcpMethod, IcpParams, Kernel, MarkerAnchoring, MergeParams, View, ViewMarkers, merge_markers,
     poses_from_markers, register_views,
 };
 use fusegraph_engine::Inputs;
@@ -249,7 +249,7 @@ impl RunOp for Multiview {
             }
             OutputFrame::World => "world".to_string(),
         };
-        let (seen_in, sightings): (Vec<usize>, Vec<(Vec<Point3<f64>>, Isometry3<f64>)>) = markers
+        let (seen_in, sightings): (Vec<usize>, Vec<ViewMarkers>) = markers
             .into_iter()
             .zip(&m.poses)
             .enumerate()

@@ -131,8 +131,15 @@ fn mean(g: &[(usize, usize, Point3<f64>)]) -> Point3<f64> {
 
 /// The median of each coordinate.
 fn median(g: &[(usize, usize, Point3<f64>)]) -> Point3<f64> {
+    median_point(g.iter().map(|(_, _, p)| p))
+}
+
+/// The median of each coordinate of `points` (at least one).
+pub(crate) fn median_point<'a>(
+    points: impl Iterator<Item = &'a Point3<f64>> + Clone,
+) -> Point3<f64> {
     let mid = |axis: usize| {
-        let mut v: Vec<f64> = g.iter().map(|(_, _, p)| p[axis]).collect();
+        let mut v: Vec<f64> = points.clone().map(|p| p[axis]).collect();
         v.sort_by(f64::total_cmp);
         let n = v.len();
         if n % 2 == 1 {

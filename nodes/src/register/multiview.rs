@@ -52,6 +52,9 @@ pub struct MarkerAnchoring {
     pub tolerance_mm: f64,
     /// Weight of a view's markers together against its surface pairs.
     pub weight: f64,
+    /// In the adjustment, a sighting farther than this from the median of
+    /// the other views' sightings near it (two or more) anchors nothing, mm.
+    pub outlier_mm: f64,
 }
 
 /// The markers view `j` shares with view `i`, matched by their distances to
@@ -85,7 +88,8 @@ fn shared_markers(
 }
 
 /// View `i`'s markers paired with the nearest marker of any other view
-/// (world frame, under the current poses) within the tolerance.
+/// (world frame, under the current poses) within the tolerance, but for a
+/// sighting the other views (two or more) put more than `outlier_mm` away.
 fn adjustment_anchors(
     anchoring: &MarkerAnchoring,
     i: usize,
@@ -102,9 +106,20 @@ fn adjustment_anchors(
     let (mut source, mut target) = (Vec::new(), Vec::new());
     for p in own {
         let world = poses[i] * p;
-        if let Some(q) = others
+        let near: Vec<&Point3<f64>> = others
             .iter()
             .filter(|q| (*q - world).norm() < anchoring.tolerance_mm)
+            .collect();
+        // A sighting the others (two or more) put elsewhere is off itself
+        // (a marker cut by a tool): it must not pull its view.
+        if near.len() >= 2
+            && (super::marker_merge::median_point(near.iter().copied()) - world).norm()
+                > anchoring.outlier_mm
+        {
+            continue;
+        }
+        if let Some(q) = near
+            .into_iter()
             .min_by(|a, b| (*a - world).norm().total_cmp(&(*b - world).norm()))
         {
             source.push(*p);
@@ -260,6 +275,36 @@ pub fn poses_from_markers(
         poses.push(previous * step);
     }
     Ok(poses)
+}
+
+#[cfg(test)]
+mod anchor_tests {
+    use super::*;
+
+    #[test]
+    fn a_sighting_the_others_put_elsewhere_anchors_nothing() {
+        let at = |x: f64| Point3::new(x, 0.0, 500.0);
+        let shared = [at(-40.0), at(-20.0), at(0.0)];
+        // Marker A at x = 30: views 1 and 2 see it there, view 0 3 mm off.
+        let seen = |a: f64| {
+            let mut m = shared.to_vec();
+            m.push(at(a));
+            m
+        };
+        let anchoring = MarkerAnchoring {
+            markers: vec![seen(33.0), seen(30.0), seen(30.0)],
+            tolerance_mm: 4.0,
+            weight: 1.0,
+            outlier_mm: 2.5,
+        };
+        let poses = vec![Isometry3::identity(); 3];
+        let view0 = adjustment_anchors(&anchoring, 0, &poses).unwrap();
+        assert_eq!(view0.source, shared.to_vec(), "A off: not an anchor");
+        // View 1's A is 1.5 mm from the others' median (30 and 33): kept.
+        let view1 = adjustment_anchors(&anchoring, 1, &poses).unwrap();
+        assert_eq!(view1.source.len(), 4);
+        assert_eq!(view1.target[3], at(30.0), "the nearest sighting");
+    }
 }
 
 #[cfg(test)]

@@ -20,7 +20,7 @@ pub const MAX_VIEWS: usize = 8;
 
 /// Several camera clouds (and their markers) with rough poses -> one cloud and one marker set: pairwise ICP around the ring, then global adjustment
 #[derive(Op)]
-#[op(name = "register.multiview", version = 5)]
+#[op(name = "register.multiview", version = 6)]
 pub struct Multiview {
     /// ICP: pairs farther apart are ignored
     #[param(default = 8.0, unit = "mm", min = 1e-3)]
@@ -46,7 +46,7 @@ pub struct Multiview {
     /// Marker sightings from different views closer than this are one marker
     #[param(default = 4.0, unit = "mm", min = 0.0)]
     pub merge_mm: f64,
-    /// A sighting farther than this from the median of a marker's sightings (seen in 3 views or more) is dropped, as is a marker seen once within twice merge_mm of one seen more often: a marker partly hidden or cut by a highlight is measured off
+    /// A sighting farther than this from the median of the other views' sightings of its marker anchors nothing in the adjustment, and (seen in 3 views or more) is dropped from the merge, as is a marker seen once within twice merge_mm of one seen more often: a marker partly hidden or cut by a highlight is measured off
     #[param(default = 2.5, unit = "mm", min = 0.0)]
     pub outlier_mm: f64,
     /// Neighbours for normals of clouds without them
@@ -236,6 +236,7 @@ impl RunOp for Multiview {
                 .collect(),
             tolerance_mm: self.merge_mm,
             weight: self.marker_weight,
+            outlier_mm: self.outlier_mm,
         });
         let mut m = register_views(&views, &rough, &p, self.rounds, anchoring.as_ref())
             .map_err(OpError::invalid)?;

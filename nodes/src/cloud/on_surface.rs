@@ -19,45 +19,42 @@
 //! Written here: a few lines over nalgebra and our plane fit.
 
 use super::{Plane, dominant_plane};
+use fusegraph_engine::typed::declared_defaults;
+use fusegraph_plugin_api::derive::Params;
 use nalgebra::{Point3, Vector3};
 use std::f64::consts::TAU;
 
-/// What a marker must have around it.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// What a marker must have around it (a parameter group, flattened into
+/// `cloud.markers_on_surface`).
+#[derive(Debug, Clone, Copy, PartialEq, Params)]
 pub struct SurfaceTest {
-    /// Radius of the skin patch around a marker, mm: beyond the hole its face
-    /// and walls leave in the skin cloud.
+    /// Radius of the skin patch around a marker (beyond the hole its face and walls leave in the cloud)
+    #[param(default = 20.0, unit = "mm", min = 1e-3)]
     pub support_radius_mm: f64,
-    /// Sides (of 8, around the marker in the patch's plane) that must hold
-    /// skin.
+    /// Sides, of 8 around a marker, that must hold skin
+    #[param(default = 5, min = 0, max = 8)]
     pub min_sides: usize,
-    /// Largest distance of the marker from the patch's plane, mm (the face
-    /// stands its height above the skin).
+    /// Largest distance of a marker from the skin patch's plane (its face stands its height above the skin)
+    #[param(default = 10.0, unit = "mm", min = 0.0)]
     pub max_off_surface_mm: f64,
-    /// Points this close to the patch's plane are skin, mm.
+    /// Points this close to the patch's plane are skin
+    #[param(default = 3.0, unit = "mm", min = 1e-3)]
     pub plane_tolerance_mm: f64,
-    /// Radius about the marker's line of sight, at its range, in which
-    /// something nearer the camera hides part of it, mm.
+    /// Radius about a marker's line of sight, at its range, in which something nearer the camera hides part of it
+    #[param(default = 10.0, unit = "mm", min = 0.0)]
     pub occluder_radius_mm: f64,
-    /// How far in front of the skin's plane a point must be to hide the
-    /// marker, mm.
+    /// How far in front of the skin a point must be to hide a marker
+    #[param(default = 8.0, unit = "mm", min = 0.0)]
     pub min_front_mm: f64,
-    /// Above this fraction of the points in its line of sight in front of it,
-    /// a marker is hidden (below, they are stereo's stray mismatches).
+    /// Above this fraction of the points in its line of sight in front of it, a marker is hidden (below, they are stereo's stray mismatches)
+    #[param(default = 0.02, min = 0.0, max = 1.0)]
     pub min_hidden_fraction: f64,
 }
 
 impl Default for SurfaceTest {
+    /// The declared defaults.
     fn default() -> Self {
-        SurfaceTest {
-            support_radius_mm: 20.0,
-            min_sides: 5,
-            max_off_surface_mm: 10.0,
-            plane_tolerance_mm: 3.0,
-            occluder_radius_mm: 10.0,
-            min_front_mm: 8.0,
-            min_hidden_fraction: 0.02,
-        }
+        declared_defaults().expect("every parameter has a default")
     }
 }
 

@@ -15,27 +15,9 @@ pub struct MarkersOnSurface {
     /// The markers' colour, whose points are not skin
     #[param(flatten)]
     pub colour: MarkerColour,
-    /// Radius of the skin patch around a marker (beyond the hole its face and walls leave in the cloud)
-    #[param(default = SurfaceTest::default().support_radius_mm, unit = "mm", min = 1e-3)]
-    pub support_radius_mm: f64,
-    /// Sides, of 8 around a marker, that must hold skin
-    #[param(default = SurfaceTest::default().min_sides, min = 0, max = 8)]
-    pub min_sides: usize,
-    /// Largest distance of a marker from the skin patch's plane (its face stands its height above the skin)
-    #[param(default = SurfaceTest::default().max_off_surface_mm, unit = "mm", min = 0.0)]
-    pub max_off_surface_mm: f64,
-    /// Points this close to the patch's plane are skin
-    #[param(default = SurfaceTest::default().plane_tolerance_mm, unit = "mm", min = 1e-3)]
-    pub plane_tolerance_mm: f64,
-    /// Radius about a marker's line of sight, at its range, in which something nearer the camera hides part of it
-    #[param(default = SurfaceTest::default().occluder_radius_mm, unit = "mm", min = 0.0)]
-    pub occluder_radius_mm: f64,
-    /// How far in front of the skin a point must be to hide a marker
-    #[param(default = SurfaceTest::default().min_front_mm, unit = "mm", min = 0.0)]
-    pub min_front_mm: f64,
-    /// Above this fraction of the points in its line of sight in front of it, a marker is hidden (below, they are stereo's stray mismatches)
-    #[param(default = SurfaceTest::default().min_hidden_fraction, min = 0.0, max = 1.0)]
-    pub min_hidden_fraction: f64,
+    /// What a marker must have around it
+    #[param(flatten)]
+    pub test: SurfaceTest,
 }
 
 #[derive(Inputs)]
@@ -52,20 +34,6 @@ pub struct MarkersOnSurfaceOutputs {
     pub markers: Markers,
 }
 
-impl MarkersOnSurface {
-    fn test(&self) -> SurfaceTest {
-        SurfaceTest {
-            support_radius_mm: self.support_radius_mm,
-            min_sides: self.min_sides,
-            max_off_surface_mm: self.max_off_surface_mm,
-            plane_tolerance_mm: self.plane_tolerance_mm,
-            occluder_radius_mm: self.occluder_radius_mm,
-            min_front_mm: self.min_front_mm,
-            min_hidden_fraction: self.min_hidden_fraction,
-        }
-    }
-}
-
 impl RunOp for MarkersOnSurface {
     type Inputs = MarkersOnSurfaceInputs;
     type Outputs = MarkersOnSurfaceOutputs;
@@ -78,7 +46,7 @@ impl RunOp for MarkersOnSurface {
                 markers.frame, cloud.frame
             )));
         }
-        let test = self.test();
+        let test = self.test;
         let points = marker_points(&markers);
         let mut skin = cloud_points(&cloud);
         if let Some(rgb) = &cloud.colors {
@@ -125,7 +93,6 @@ mod tests {
     fn run(markers: Markers, cloud: PointCloud) -> Result<(Markers, Vec<String>), OpError> {
         let mut ctx = RunCtx::new("on_skin", &std::env::temp_dir());
         let op: MarkersOnSurface = fusegraph_engine::typed::declared_defaults().unwrap();
-        assert_eq!(op.test(), SurfaceTest::default());
         let inputs = MarkersOnSurfaceInputs {
             markers: Arc::new(markers),
             cloud: Arc::new(cloud),

@@ -188,7 +188,8 @@ pub fn sgm_disparity(
         ));
     }
     let t0 = std::time::Instant::now();
-    // Census costs are computed row by row as the aggregation needs them;
+    // Census costs are computed row by row as the aggregation needs them (a
+    // noisy pair is matched twice, the second time smoothed);
     // Birchfield-Tomasi's window means need the whole volume first.
     let (mut disparity, t1) = match config.cost {
         MatchCost::Census { width, height } => {
@@ -210,7 +211,8 @@ pub fn sgm_disparity(
             } else {
                 d
             };
-            (d, std::time::Instant::now())
+            // The census costs are computed inside the aggregation.
+            (d, t0)
         }
         MatchCost::BirchfieldTomasi { window } => {
             check_bt_window(window)?;

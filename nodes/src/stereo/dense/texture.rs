@@ -136,10 +136,16 @@ pub fn flat_windows(img: &GreyImage, win_w: usize, win_h: usize, min_std: f64) -
 mod tests {
     use super::*;
 
-    fn noisy(w: usize, h: usize, sigma: f64, texture: impl Fn(usize, usize) -> f64) -> GreyImage {
+    fn noisy(
+        w: usize,
+        h: usize,
+        sigma: f64,
+        seed: u64,
+        texture: impl Fn(usize, usize) -> f64,
+    ) -> GreyImage {
         use rand::SeedableRng;
         use rand_distr::{Distribution, Normal};
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let n = Normal::new(0.0, sigma).unwrap();
         GreyImage {
             width: w,
@@ -157,7 +163,7 @@ mod tests {
     #[test]
     fn estimates_the_noise_of_a_flat_image() {
         for sigma in [2.0, 5.0] {
-            let img = noisy(200, 150, sigma, |_, _| 100.0);
+            let img = noisy(200, 150, sigma, 7, |_, _| 100.0);
             let s = noise_sigma(&img);
             assert!((s - sigma).abs() < 0.15 * sigma, "{s} vs {sigma}");
         }
@@ -166,7 +172,7 @@ mod tests {
     #[test]
     fn flags_only_the_blank_half() {
         // Left half blank (noise only), right half a texture.
-        let img = noisy(120, 60, 2.0, |x, y| {
+        let img = noisy(120, 60, 2.0, 7, |x, y| {
             if x < 60 {
                 40.0
             } else {
@@ -186,52 +192,17 @@ mod tests {
         assert!(share(5..50) > 0.99, "{}", share(5..50));
         assert!(share(70..115) < 0.01, "{}", share(70..115));
     }
-}
-
-#[cfg(test)]
-mod prefilter_tests {
-    use super::*;
-
-    /// A texture of `amplitude` grey levels shifted by `shift` px, with white
-    /// noise of `noise` grey levels added.
-    fn noisy(w: usize, h: usize, noise: f64, seed: u64, shift: usize, amplitude: f64) -> GreyImage {
-        let mut state = seed;
-        let mut gauss = || {
-            // Sum of 12 uniforms: a unit normal to a good approximation.
-            (0..12)
-                .map(|_| {
-                    state = state
-                        .wrapping_mul(6364136223846793005)
-                        .wrapping_add(1442695040888963407);
-                    (state >> 11) as f64 / (1u64 << 53) as f64
-                })
-                .sum::<f64>()
-                - 6.0
-        };
-        let texture = |x: usize, y: usize| {
-            128.0 + amplitude * ((x as f64 * 0.7).sin() * (y as f64 * 0.3).cos())
-        };
-        GreyImage {
-            width: w,
-            height: h,
-            data: (0..w * h)
-                .map(|i| {
-                    (texture(i % w + shift, i / w) + noise * gauss())
-                        .round()
-                        .clamp(0.0, 255.0) as u8
-                })
-                .collect(),
-        }
-    }
 
     #[test]
     fn the_pair_residual_measures_the_noise_not_the_texture() {
         // Left(x) = texture(x), right(x) = texture(x + 5): disparity 5.
         let (w, h) = (160, 120);
+        let wave =
+            |x: usize, y: usize| 128.0 + 60.0 * ((x as f64 * 0.7).sin() * (y as f64 * 0.3).cos());
         for noise in [0.0, 4.0, 10.0] {
             let (left, right) = (
-                noisy(w, h, noise, 1, 0, 60.0),
-                noisy(w, h, noise, 2, 5, 60.0),
+                noisy(w, h, noise, 1, wave),
+                noisy(w, h, noise, 2, |x, y| wave(x + 5, y)),
             );
             let disparity = vec![5.0f32; w * h];
             let measured = pair_noise_dn(&left, &right, &disparity).unwrap();
@@ -246,7 +217,7 @@ mod prefilter_tests {
                 "{noise}: {measured}"
             );
         }
-        let small = noisy(20, 20, 1.0, 1, 0, 60.0);
+        let small = noisy(20, 20, 1.0, 1, wave);
         assert_eq!(
             pair_noise_dn(&small, &small, &[0.0; 400]),
             None,
@@ -261,7 +232,7 @@ mod prefilter_tests {
         assert!((s - 5.0 / 3.5449).abs() < 1e-3, "{s}");
         assert_eq!(census_prefilter_sigma_px(40.0), 2.0, "capped");
         // Smoothing white noise by that sigma leaves about 1 grey level.
-        let flat = noisy(200, 200, 5.0, 3, 0, 0.0);
+        let flat = noisy(200, 200, 5.0, 3, |_, _| 128.0);
         let after = smoothed(&flat, census_prefilter_sigma_px(5.0));
         let n = after.data.len() as f64;
         let mean = after.data.iter().map(|&v| v as f64).sum::<f64>() / n;

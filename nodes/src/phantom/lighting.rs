@@ -105,22 +105,23 @@ impl Lighting {
 
     /// Light leaving a surface point: `albedo` (linear RGB) times `texture`
     /// under the ambient light and each lamp `lit` lets reach the point
-    /// (`lit(direction, distance)` is false in a shadow), plus highlights
-    /// when `glossy`.
+    /// (`lit(lamp index, direction, distance)` is false in a shadow; it is
+    /// asked only of lamps the surface faces, when shadows are cast), plus
+    /// highlights when `glossy`.
     pub fn shade(
         &self,
         albedo: [f32; 3],
         texture: f64,
         at: &SurfacePoint,
         glossy: bool,
-        lit: impl Fn(&Vector3<f64>, f64) -> bool,
+        lit: impl Fn(usize, &Vector3<f64>, f64) -> bool,
     ) -> [f32; 3] {
         let mut diffuse = [0.0f64; 3];
         let mut highlight = [0.0f64; 3];
-        for lamp in &self.lamps {
+        for (i, lamp) in self.lamps.iter().enumerate() {
             let (l, irradiance, distance) = lamp.towards(&at.point);
             let facing = at.normal.dot(&l).max(0.0);
-            if facing == 0.0 || (self.shadows && !lit(&l, distance)) {
+            if facing == 0.0 || (self.shadows && !lit(i, &l, distance)) {
                 continue;
             }
             for (d, colour) in diffuse.iter_mut().zip(lamp.colour) {
@@ -206,7 +207,7 @@ mod tests {
     #[test]
     fn the_ideal_light_is_ambient_plus_lambert() {
         let light = Lighting::ideal(Vector3::z());
-        let lit = |_: &Vector3<f64>, _: f64| true;
+        let lit = |_: usize, _: &Vector3<f64>, _: f64| true;
         let facing = light.shade([1.0; 3], 1.0, &at(0.0, Vector3::z()), true, lit);
         assert_eq!(facing, [1.0; 3]);
         let sideways = light.shade([0.5; 3], 1.0, &at(0.0, Vector3::x()), true, lit);
@@ -223,14 +224,14 @@ mod tests {
         light.specular = 0.5;
         light.shadows = true;
         let up = Vector3::z();
-        let open = |_: &Vector3<f64>, _: f64| true;
+        let open = |_: usize, _: &Vector3<f64>, _: f64| true;
         // The mirror direction: the full highlight on top of the diffuse.
         let c = light.shade([0.5; 3], 1.0, &at(0.0, up), true, open);
         assert!((c[0] - 1.0).abs() < 1e-6, "{c:?}");
         // Twice as far: a quarter of the lamp's light.
         let d = light.shade([1.0; 3], 1.0, &at(-100.0, up), false, open);
         assert!((d[0] - (0.35 + 0.65 * 0.25)).abs() < 1e-6, "{d:?}");
-        let shadowed = light.shade([1.0; 3], 1.0, &at(0.0, up), true, |_, _| false);
+        let shadowed = light.shade([1.0; 3], 1.0, &at(0.0, up), true, |_, _, _| false);
         assert!((shadowed[0] - 0.35).abs() < 1e-6, "{shadowed:?}");
     }
 }

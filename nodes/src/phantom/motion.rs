@@ -204,8 +204,7 @@ impl MotionField {
             if residual.norm_squared() < 1e-20 {
                 break;
             }
-            let step = self.gradient(&q).lu().solve(&residual).unwrap_or(residual);
-            q -= step;
+            q -= self.newton_step(&q, &residual);
         }
         q
     }
@@ -217,7 +216,15 @@ impl MotionField {
             return *p;
         }
         let residual = self.moved(q) - p;
-        q - self.gradient(q).lu().solve(&residual).unwrap_or(residual)
+        q - self.newton_step(q, &residual)
+    }
+
+    /// The Newton step F(q)^-1 r (the closed-form 3 x 3 inverse: this runs
+    /// for every ray through moved tissue); `r` itself where F is singular.
+    fn newton_step(&self, q: &Point3<f64>, residual: &Vector3<f64>) -> Vector3<f64> {
+        self.gradient(q)
+            .try_inverse()
+            .map_or(*residual, |inverse| inverse * residual)
     }
 
     /// |F^-T n| for unit normal `n` at scanned point `q`: a distance `s`

@@ -3,15 +3,17 @@
 //! as chords. Each chord's end points are mapped back by the field's inverse,
 //! the analytic intersection runs on the chord, and the first chord hit is
 //! refined on one short chord around it. With a smooth field the chord's
-//! sagitta bounds the error: about 0.1 mm for the coarse chords and 1e-4 mm
+//! sagitta bounds the error: about 0.1 mm for the coarse chords and 1e-3 mm
 //! for the short one, at 15 mm of motion over the dome.
 //!
-//! Three things keep it within a small factor of the still phantom's cost:
+//! Four things keep it within a small factor of the still phantom's cost:
 //! only the span of the ray inside the ellipsoid grown by the markers' reach
 //! and the motion's peak is followed (nothing moved lies outside it), the
 //! inverse map of the coarse chords is read from a grid (trilinear, built
-//! once; the short chord's ends are exact), and a chord that stays further
-//! from the dome's ellipsoid than anything on it reaches is not intersected.
+//! once; the short chord's ends are exact), a chord that stays further
+//! from the dome's ellipsoid than anything on it reaches is not intersected,
+//! and the supersamples of a pixel whose neighbours all met the skin search
+//! only the span of their distances ([`MovedShape::intersect_near`]).
 
 use super::motion::MotionField;
 use super::shape::{PhantomShape, Surface};
@@ -23,6 +25,13 @@ use rayon::prelude::*;
 const COARSE_CHORD_MM: f64 = 16.0;
 /// Half the length of the refining chord, mm along the ray.
 const FINE_HALF_MM: f64 = 0.5;
+/// How far beyond the span of its neighbours' distances a ray's hit on the
+/// skin is looked for, mm (a pixel's rays on a smooth surface stay well
+/// within their neighbours' span: the margin only takes the curvature).
+const NEAR_MARGIN_MM: f64 = 0.5;
+/// The longest span searched near the neighbours' distances, mm (longer
+/// ones, on skin seen edge-on, follow the whole ray).
+const NEAR_SPAN_LIMIT_MM: f64 = 8.0;
 /// Spacing of the inverse map's grid, mm: its interpolation error is about
 /// |u''| h^2 / 8, under 0.1 mm for the fields `MotionField` makes at 15 mm
 /// (as good as the coarse chords' sagitta; the short chord's ends take a
@@ -138,6 +147,42 @@ impl MovedShape {
         // Chord hits carry the scanned surface's normal until here.
         hit.normal = self.field.moved_normal(&hit.scanned, &hit.normal);
         Some(hit)
+    }
+
+    /// [`MovedShape::intersect`] for a ray whose neighbours, within a pixel
+    /// of it on every side, all met the skin at distances within
+    /// `span_mm`: only that span, widened by [`NEAR_MARGIN_MM`], is
+    /// searched, on short chords (as exact as `intersect`'s refining one).
+    /// Where the span holds no skin, or is too long to be worth it, the
+    /// whole ray is followed. Nothing in front of the span can be missed
+    /// unless it is thinner than the pixel grid, which the renderer's
+    /// supersampling does not resolve either.
+    pub fn intersect_near(
+        &self,
+        origin: &Point3<f64>,
+        dir: &Vector3<f64>,
+        t_min: f64,
+        span_mm: (f64, f64),
+    ) -> Option<MovedHit> {
+        let Some(grid) = &self.inverse else {
+            return self.intersect(origin, dir, t_min);
+        };
+        let (a, b) = (
+            (span_mm.0 - NEAR_MARGIN_MM).max(t_min),
+            span_mm.1 + NEAR_MARGIN_MM,
+        );
+        if !(b - a).is_finite() || b - a > NEAR_SPAN_LIMIT_MM {
+            return self.intersect(origin, dir, t_min);
+        }
+        let chords = ((b - a) / (2.0 * FINE_HALF_MM)).ceil().max(1.0) as usize;
+        let exact = |p: &Point3<f64>| self.field.unmoved_step(p, &grid.at(p));
+        match self.first_chord_hit(origin, dir, a, b, chords, exact) {
+            Some(mut hit) if hit.surface == Surface::Skin => {
+                hit.normal = self.field.moved_normal(&hit.scanned, &hit.normal);
+                Some(hit)
+            }
+            _ => self.intersect(origin, dir, t_min),
+        }
     }
 
     /// The ray's span inside the box and the grown ellipsoid, if any.
@@ -379,6 +424,65 @@ mod tests {
             }
             assert!(worst < 0.1, "{kind:?}: {worst} mm");
         }
+    }
+
+    #[test]
+    fn a_ray_searched_near_its_neighbours_skin_hits_what_the_whole_ray_hits() {
+        let s = shape();
+        let field = MotionField::new(MotionKind::Sag, 12.0, 30.0, &s);
+        let moved = MovedShape::new(s.clone(), field);
+        let eye = Point3::new(60.0, -300.0, 350.0);
+        // Pixel-sized steps of the ray at 400 mm (0.3 mm), over the dome.
+        let step = 0.3 / 400.0;
+        let (mut near_checked, mut fallbacks) = (0, 0);
+        for k in 0..40 {
+            let (x, y) = ((k % 8) as f64 * 10.0 - 35.0, (k / 8) as f64 * 15.0 - 30.0);
+            let centre = (Point3::new(x, y, 20.0) - eye).normalize();
+            let (u, v) = (
+                centre.cross(&Vector3::z()).normalize(),
+                centre.cross(&centre.cross(&Vector3::z())).normalize(),
+            );
+            let ray = |i: f64, j: f64| (centre + u * i * step + v * j * step).normalize();
+            let neighbours: Vec<_> = (-1..=1)
+                .flat_map(|j| (-1..=1).map(move |i| (i as f64, j as f64)))
+                .map(|(i, j)| moved.intersect(&eye, &ray(i, j), 0.0))
+                .collect();
+            if !neighbours
+                .iter()
+                .all(|h| h.is_some_and(|h| h.surface == Surface::Skin))
+            {
+                continue;
+            }
+            let ts = neighbours.iter().map(|h| h.unwrap().t);
+            let span = (
+                ts.clone().fold(f64::INFINITY, f64::min),
+                ts.fold(0.0, f64::max),
+            );
+            for (i, j) in [(0.0, 0.0), (0.4, -0.3), (-0.45, 0.45), (0.2, 0.1)] {
+                let dir = ray(i, j);
+                let whole = moved.intersect(&eye, &dir, 0.0).unwrap();
+                let near = moved.intersect_near(&eye, &dir, 0.0, span).unwrap();
+                assert_eq!(near.surface, whole.surface);
+                // Both are short chords of the ray's curved path: a few um
+                // apart, a hundredth of the skin texture's finest feature.
+                assert!(
+                    (near.t - whole.t).abs() < 5e-3,
+                    "t {} vs {}",
+                    near.t,
+                    whole.t
+                );
+                assert!((near.scanned - whole.scanned).norm() < 5e-3);
+                assert!((near.normal - whole.normal).norm() < 1e-3);
+                near_checked += 1;
+                // A span the ray does not meet the skin in: the whole ray.
+                let wrong = (span.0 - 30.0, span.0 - 20.0);
+                let fallback = moved.intersect_near(&eye, &dir, 0.0, wrong).unwrap();
+                assert!((fallback.t - whole.t).abs() < 1e-9);
+                fallbacks += 1;
+            }
+        }
+        assert!(near_checked >= 60, "{near_checked} rays checked");
+        assert_eq!(fallbacks, near_checked);
     }
 
     #[test]

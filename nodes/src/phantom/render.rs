@@ -11,6 +11,18 @@ use crate::camera::CameraModel;
 use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 
+/// What a ray meets first.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Seen {
+    /// Linear RGB (0..1).
+    pub rgb: [f32; 3],
+    /// Distance along the ray, mm (infinite for nothing).
+    pub distance_mm: f64,
+    /// A key of the smooth surface met, when the scene can search a ray
+    /// near a depth its neighbours saw on it ([`Scene::radiance_near`]).
+    pub smooth_surface: Option<u32>,
+}
+
 /// Something rays can look at.
 pub trait Scene: Sync {
     /// Linear RGB (0..1) seen along the ray from `origin` along unit `dir`
@@ -21,6 +33,32 @@ pub trait Scene: Sync {
     /// Linear RGB (0..1) seen along the ray.
     fn radiance(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> [f32; 3] {
         self.radiance_at(origin, dir).0
+    }
+
+    /// [`Scene::radiance_at`] with the smooth surface met, if the scene
+    /// tells surfaces apart (by default it does not).
+    fn seen(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> Seen {
+        let (rgb, distance_mm) = self.radiance_at(origin, dir);
+        Seen {
+            rgb,
+            distance_mm,
+            smooth_surface: None,
+        }
+    }
+
+    /// What the ray sees, told that the rays around it (within a pixel of
+    /// it, on every side) all met smooth surface `surface` at distances
+    /// within `span_mm`: a scene may search only near that span. The
+    /// answer must be [`Scene::radiance`]'s but for what the pixel grid
+    /// cannot resolve anyway (anything thinner than a pixel in front).
+    fn radiance_near(
+        &self,
+        origin: &Point3<f64>,
+        dir: &Vector3<f64>,
+        _surface: u32,
+        _span_mm: (f64, f64),
+    ) -> [f32; 3] {
+        self.radiance(origin, dir)
     }
 }
 
@@ -114,52 +152,68 @@ fn render_with(
     let origin = Point3::from(camera_to_world.translation.vector);
     // A rotation matrix is cheaper to apply than the quaternion, per sample.
     let rotation = camera_to_world.rotation.to_rotation_matrix();
-    let sample = |u: f64, v: f64| scene.radiance(&origin, &(rotation * rays.direction(u, v)));
 
-    // One sample per pixel centre (with its depth along the optical axis when
-    // the lens defocuses), then supersampling where neighbours differ.
+    // One sample per pixel centre (with the surface it met and how far),
+    // then supersampling where neighbours differ.
+    let n = p.supersample.max(1);
     let mut image = vec![[0.0f32; 3]; w * h];
-    let mut depth = vec![0.0f32; if p.lens.is_some() { w * h } else { 0 }];
-    if p.lens.is_some() {
-        image
-            .par_chunks_mut(w)
-            .zip(depth.par_chunks_mut(w))
-            .enumerate()
-            .for_each(|(y, (row, depth_row))| {
-                for (x, (px, z)) in row.iter_mut().zip(depth_row.iter_mut()).enumerate() {
-                    let ray = rays.direction(x as f64, y as f64);
-                    let (rgb, t) = scene.radiance_at(&origin, &(rotation * ray));
-                    *px = rgb;
-                    *z = (t * ray.z) as f32;
+    let mut seen = vec![(f64::INFINITY, None); w * h];
+    image
+        .par_chunks_mut(w)
+        .zip(seen.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(y, (row, seen_row))| {
+            for (x, (px, s)) in row.iter_mut().zip(seen_row.iter_mut()).enumerate() {
+                let dir = rotation * rays.direction(x as f64, y as f64);
+                if n > 1 || p.lens.is_some() {
+                    let look = scene.seen(&origin, &dir);
+                    *px = look.rgb;
+                    *s = (look.distance_mm, look.smooth_surface);
+                } else {
+                    *px = scene.radiance(&origin, &dir);
                 }
-            });
-    } else {
-        image.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-            for (x, px) in row.iter_mut().enumerate() {
-                *px = sample(x as f64, y as f64);
             }
         });
-    }
-    let n = p.supersample.max(1);
     if n > 1 {
         let offsets: Vec<f64> = (0..n).map(|s| (s as f64 + 0.5) / n as f64 - 0.5).collect();
         let centre = image.clone();
+        let neighbours = |x: usize, y: usize| {
+            (y.saturating_sub(1)..(y + 2).min(h)).flat_map(move |yy| {
+                (x.saturating_sub(1)..(x + 2).min(w)).map(move |xx| xx + yy * w)
+            })
+        };
         let differs = |x: usize, y: usize| {
             let c = centre[x + y * w];
-            (y.saturating_sub(1)..(y + 2).min(h)).any(|yy| {
-                (x.saturating_sub(1)..(x + 2).min(w)).any(|xx| {
-                    let o = centre[xx + yy * w];
-                    (0..3).any(|ch| (o[ch] - c[ch]).abs() > 0.02)
-                })
-            })
+            neighbours(x, y).any(|i| (0..3).any(|ch| (centre[i][ch] - c[ch]).abs() > 0.02))
+        };
+        // The one smooth surface all the neighbours met, and the span of
+        // their distances, if they all met one.
+        let near = |x: usize, y: usize| {
+            let surface = seen[x + y * w].1?;
+            let mut span = (f64::INFINITY, f64::NEG_INFINITY);
+            for i in neighbours(x, y) {
+                let (t, s) = seen[i];
+                if s != Some(surface) {
+                    return None;
+                }
+                span = (span.0.min(t), span.1.max(t));
+            }
+            Some((surface, span))
         };
         image.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
             for (x, px) in row.iter_mut().enumerate() {
                 if differs(x, y) {
+                    let near = near(x, y);
                     let mut acc = [0.0f32; 3];
                     for &dy in &offsets {
                         for &dx in &offsets {
-                            let s = sample(x as f64 + dx, y as f64 + dy);
+                            let dir = rotation * rays.direction(x as f64 + dx, y as f64 + dy);
+                            let s = match near {
+                                Some((surface, span)) => {
+                                    scene.radiance_near(&origin, &dir, surface, span)
+                                }
+                                None => scene.radiance(&origin, &dir),
+                            };
                             (0..3).for_each(|ch| acc[ch] += s[ch]);
                         }
                     }
@@ -172,9 +226,13 @@ fn render_with(
         image = gaussian_blur(&image, w, h, p.blur_sigma_px);
     }
     if let Some(lens) = &p.lens {
-        let circles: Vec<f32> = depth
-            .par_iter()
-            .map(|&z| lens.blur_circle_px(z as f64) as f32)
+        // Depth along the optical axis of what each pixel centre met.
+        let circles: Vec<f32> = (0..w * h)
+            .into_par_iter()
+            .map(|i| {
+                let ray = rays.direction((i % w) as f64, (i / w) as f64);
+                lens.blur_circle_px((seen[i].0 * ray.z) as f32 as f64) as f32
+            })
             .collect();
         image = defocus(&image, w, h, &circles);
     }

@@ -12,7 +12,7 @@ use std::path::PathBuf;
 
 /// Chessboard inner corners, sub-pixel, in every image matching a glob
 #[derive(Op)]
-#[op(name = "calib.find_chessboard", version = 6)]
+#[op(name = "calib.find_chessboard", version = 7)]
 pub struct FindChessboard {
     /// Folder of images, relative to the graph
     pub dir: Option<PathBuf>,

@@ -104,13 +104,17 @@ pub fn run_graph(
         .thread_name(|i| format!("fusegraph-{i}"))
         .build()
         .map_err(std::io::Error::other)?;
+    // The roots are chosen before any node runs: a node released by its
+    // upstream while this loop still ran would otherwise be spawned twice,
+    // and its second run would release its own successors early.
+    let roots: Vec<usize> = (0..n)
+        .filter(|&i| exec.pending[i].load(Ordering::Acquire) == 0)
+        .collect();
     pool.install(|| {
         rayon::scope(|s| {
-            for i in 0..n {
-                if exec.pending[i].load(Ordering::Acquire) == 0 {
-                    let exec = &exec;
-                    s.spawn(move |s| exec.execute(i, s));
-                }
+            for i in roots {
+                let exec = &exec;
+                s.spawn(move |s| exec.execute(i, s));
             }
         })
     });

@@ -1,6 +1,8 @@
 //! A ray-casting camera simulator: for every pixel, rays through the exact
 //! camera model (distortion included) into a [`Scene`], adaptively supersampled
-//! where the image has edges (anti-aliasing), then lens blur and defocus
+//! where the image has edges (anti-aliasing; a pixel whose eight neighbours'
+//! centres all met one smooth surface tells its supersamples so, and the
+//! scene may search only near their distances), then lens blur and defocus
 //! ([`super::defocus`]) and the sensor ([`super::sensor`]: vignetting,
 //! exposure, noise, mosaic), quantised to 8-bit RGB. Rows render in parallel
 //! with per-row random streams, so output is identical for any thread count.

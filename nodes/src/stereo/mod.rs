@@ -24,9 +24,10 @@ mod triangulate;
 pub use dense::{
     Aggregated, BlockCost, CensusCosts, CostRows, CostVolume, DisparityRange, FillParams,
     GreyImage, Isa, MAX_SIDE, MatchCost, Paths, RefineParams, SelectParams, SgmConfig, SgmParams,
-    aggregate, block_match, bt_costs, census_costs, census_transform, check_bt_window,
-    check_census_window, check_pair, check_penalties, fill_disparity, filter_speckles,
-    flat_windows, noise_sigma, refine_disparity, select, sgm_disparity, speckle_size_px,
+    SlantedParams, aggregate, block_match, bt_costs, census_costs, census_transform,
+    check_bt_window, check_census_window, check_pair, check_penalties, fill_disparity,
+    filter_speckles, flat_windows, noise_sigma, refine_disparity, refine_slanted, select,
+    sgm_disparity, speckle_size_px,
 };
 pub use features::{
     FeatureMatch, MatchParams, RangeParams, core_disparities, disparity_range, features_from_table,
@@ -48,6 +49,7 @@ pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.add::<ops::Sgm>()?;
     registry.add::<ops::BlockMatch>()?;
     registry.add::<ops::FillDisparity>()?;
+    registry.add::<ops::RefineSlanted>()?;
     registry.add::<ops::Triangulate>()?;
     registry.add::<ops::HsvMarkers>()?;
     registry.add::<ops::Features>()?;

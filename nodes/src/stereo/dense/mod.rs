@@ -19,6 +19,7 @@ mod select;
 mod sgm;
 mod sgm_disparity;
 mod simd;
+mod slanted;
 mod texture;
 mod volume;
 
@@ -33,5 +34,6 @@ pub use select::{SelectParams, select};
 pub use sgm::{Aggregated, Paths, SgmParams, aggregate, check_penalties};
 pub use sgm_disparity::{MatchCost, SgmConfig, check_bt_window, sgm_disparity, speckle_size_px};
 pub use simd::Isa;
+pub use slanted::{SlantedParams, refine_slanted};
 pub use texture::{flat_windows, noise_sigma};
 pub use volume::{CostRows, CostVolume};

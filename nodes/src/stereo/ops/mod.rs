@@ -8,6 +8,7 @@ mod fill_disparity;
 mod hsv_markers;
 mod match_features;
 mod matcher;
+mod refine_slanted;
 mod sgm;
 mod triangulate;
 
@@ -18,6 +19,7 @@ pub use fill_disparity::{FillDisparity, FillDisparityInputs, FillDisparityOutput
 pub use hsv_markers::{BLOB_COLUMNS, HsvMarkers, HsvMarkersInputs, HsvMarkersOutputs};
 pub use match_features::{MatchFeatures, MatchFeaturesInputs, MatchFeaturesOutputs};
 pub use matcher::{DisparityOutputs, MatcherInputs, MatcherParams, Refine};
+pub use refine_slanted::{RefineSlanted, RefineSlantedInputs, RefineSlantedOutputs};
 pub use sgm::{Sgm, SgmCost};
 pub use triangulate::{Triangulate, TriangulateInputs, TriangulateOutputs};
 

@@ -270,23 +270,28 @@ mod tests {
         )
     }
 
+    /// Mean absolute error against `truth` (row-major, `w` wide) over the
+    /// pixels `margin` px inside the image, and right of x = 60 (where every
+    /// right window is inside the right image).
+    fn mean_error_inside(v: &[f32], truth: &[f32], w: usize, margin: usize) -> f64 {
+        let h = truth.len() / w;
+        let (mut sum, mut n) = (0.0, 0);
+        for y in margin..h - margin {
+            for x in 60..w - margin {
+                sum += (v[x + y * w] - truth[x + y * w]).abs() as f64;
+                n += 1;
+            }
+        }
+        sum / n as f64
+    }
+
     #[test]
     fn a_slanted_plane_is_refined_without_the_square_windows_bias() {
         let (w, h) = (200, 60);
         let (left, right, truth) = slanted_pair(w, h, 20.0, 0.3);
         // The input: the truth 0.4 px off (a matcher's bias), its slope right.
         let biased: Vec<f32> = truth.iter().map(|d| d + 0.4).collect();
-        let mean_error = |v: &[f32]| -> f64 {
-            let mut sum = 0.0;
-            let mut n = 0;
-            for y in 10..h - 10 {
-                for x in 60..w - 10 {
-                    sum += (v[x + y * w] - truth[x + y * w]).abs() as f64;
-                    n += 1;
-                }
-            }
-            sum / n as f64
-        };
+        let mean_error = |v: &[f32]| mean_error_inside(v, &truth, w, 10);
         let (slanted, changed) = refine_slanted(&left, &right, &biased, &SlantedParams::default());
         assert!(changed > w * h / 2, "{changed} refined");
         let square = SlantedParams {
@@ -307,16 +312,7 @@ mod tests {
         let (w, h) = (200, 70);
         let (left, right, truth) = slanted_pair(w, h, 20.0, 0.3);
         let biased: Vec<f32> = truth.iter().map(|d| d + 0.4).collect();
-        let mean_error = |v: &[f32]| -> f64 {
-            let (mut sum, mut n) = (0.0, 0);
-            for y in 16..h - 16 {
-                for x in 60..w - 16 {
-                    sum += (v[x + y * w] - truth[x + y * w]).abs() as f64;
-                    n += 1;
-                }
-            }
-            sum / n as f64
-        };
+        let mean_error = |v: &[f32]| mean_error_inside(v, &truth, w, 16);
         let fixed = SlantedParams::default();
         let growing = SlantedParams {
             max_half_window: 10,

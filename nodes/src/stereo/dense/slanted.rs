@@ -14,6 +14,10 @@
 use super::pair::GreyImage;
 use rayon::prelude::*;
 
+/// How far the map may leave a window's plane at its rim for the window to
+/// grow that far, px.
+const OFF_PLANE_PX: f32 = 0.5;
+
 /// How the slanted refinement runs.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SlantedParams {
@@ -69,9 +73,11 @@ pub fn refine_slanted(
         let v = disparity[x as usize + y as usize * w];
         (!v.is_nan()).then_some(v)
     };
-    // Noise of both images (at least 8-bit quantisation's, 1 / sqrt(12)).
-    let sigma = super::noise_sigma(left)
-        .max(super::noise_sigma(right))
+    // Noise per image, from the pair's own residual at these disparities
+    // (blind to texture, unlike a one-image estimate; that one where too few
+    // pixels match), at least 8-bit quantisation's (1 / sqrt(12)).
+    let sigma = super::pair_noise_dn(left, right, disparity)
+        .unwrap_or_else(|| super::noise_sigma(left).max(super::noise_sigma(right)))
         .max(12f64.recip().sqrt()) as f32;
     let halves = window_halves(p);
     let k = p.slope_step as isize;
@@ -95,7 +101,30 @@ pub fn refine_slanted(
             };
             // The smallest window whose gradients pin the shift well enough.
             let mut half = None;
-            for &hw in &halves {
+            for (n, &hw) in halves.iter().enumerate() {
+                // A larger window only where the surface stays on the
+                // window's plane out to it (not across a depth edge or
+                // round a bend the plane does not follow).
+                let r = hw as isize;
+                let planar = |&(i, j): &(isize, isize)| {
+                    d_at(x + i, y + j).is_some_and(|d| {
+                        (d - (d0 + window.gx * i as f32 + window.gy * j as f32)).abs()
+                            <= OFF_PLANE_PX
+                    })
+                };
+                let rim = [
+                    (-r, -r),
+                    (0, -r),
+                    (r, -r),
+                    (-r, 0),
+                    (r, 0),
+                    (-r, r),
+                    (0, r),
+                    (r, r),
+                ];
+                if n > 0 && !rim.iter().all(planar) {
+                    break;
+                }
                 let Some((_, energy, _)) = window.step(left, right, d0, hw) else {
                     break;
                 };

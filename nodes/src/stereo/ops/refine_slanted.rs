@@ -10,7 +10,7 @@ use fusegraph_engine::value::{Disparity, Image};
 /// gradient (zero-mean SSD, Gauss-Newton): no fronto-parallel bias on
 /// slanted, weakly textured surfaces -> Disparity
 #[derive(Debug, Clone, PartialEq, Op)]
-#[op(name = "stereo.refine_slanted", version = 1)]
+#[op(name = "stereo.refine_slanted", version = 2)]
 pub struct RefineSlanted {
     /// Smallest window side (odd)
     #[param(default = 9, unit = "px", min = 3, max = 31)]

@@ -198,19 +198,16 @@ impl PhantomScene {
         let reached = Cell::new(0);
         let known = (near.map(|n| n.lit_lamps), &reached);
         let cast = (None, &reached);
-        let on_table = |rgb_of: &dyn Fn(Point3<f64>) -> [f32; 3]| {
-            let rgb = rgb_of(origin + dir * table_t);
-            let key = self.key(Kind::Table, reached.get());
-            seen(rgb, table_t, key)
-        };
-        let table = |p: Point3<f64>, lamps| {
+        let on_table = |lamps| {
+            let p = origin + dir * table_t;
             let t = noise.fractal(&p, 1.0 / 3.0, 2);
-            self.shade(CLOTH, 0.6 + 0.5 * t, (p, Vector3::z(), dir), false, lamps)
+            let rgb = self.shade(CLOTH, 0.6 + 0.5 * t, (p, Vector3::z(), dir), false, lamps);
+            seen(rgb, table_t, self.key(Kind::Table, reached.get()))
         };
         let body = match near {
             Some(Near {
                 kind: Kind::Table, ..
-            }) if table_t.is_finite() => return on_table(&|p| table(p, known)),
+            }) if table_t.is_finite() => return on_table(known),
             Some(Near {
                 kind: Kind::Skin,
                 span_mm,
@@ -245,7 +242,7 @@ impl PhantomScene {
             return seen(rgb, hit.t, None);
         }
         if table_t.is_finite() {
-            return on_table(&|p| table(p, cast));
+            return on_table(cast);
         }
         seen([0.05, 0.05, 0.06], f64::INFINITY, None)
     }

@@ -203,10 +203,12 @@ impl Window {
         if x - half < 0 || y - half < 0 || x + half >= w as isize || y + half >= h as isize {
             return None;
         }
-        let at = |img: &GreyImage, x: usize, y: usize| img.data[x + y * w] as f32;
-        let side = (2 * half + 1) as usize;
-        let mut samples = Vec::with_capacity(side * side);
-        let (mut sl, mut sr, mut sg) = (0.0f32, 0.0f32, 0.0f32);
+        let at = |img: &GreyImage, x: usize, y: usize| img.data[x + y * w] as f64;
+        // One pass of sums (no buffer per window: this runs for every pixel
+        // and iteration): with e = (l - r) - mean(l - r) and gz = g - mean(g),
+        // sum(e gz) = sum((l - r) g) - n mean(l - r) mean(g), and
+        // sum(gz^2) = sum(g^2) - n mean(g)^2.
+        let (mut s_lr, mut s_g, mut s_lrg, mut s_gg) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
         for j in -half..=half {
             let yy = (y + j) as usize;
             for ii in -half..=half {
@@ -215,7 +217,7 @@ impl Window {
                     return None;
                 }
                 let x0 = xr.floor();
-                let t = xr - x0;
+                let t = (xr - x0) as f64;
                 let x0 = x0 as usize;
                 let (r0, r1) = (at(right, x0, yy), at(right, x0 + 1, yy));
                 let r = r0 + (r1 - r0) * t;
@@ -223,24 +225,19 @@ impl Window {
                 // the samples around.
                 let g = 0.5
                     * ((r1 - at(right, x0 - 1, yy)) * (1.0 - t) + (at(right, x0 + 2, yy) - r0) * t);
-                let l = at(left, (x + ii) as usize, yy);
-                samples.push((l, r, g));
-                sl += l;
-                sr += r;
-                sg += g;
+                let lr = at(left, (x + ii) as usize, yy) - r;
+                s_lr += lr;
+                s_g += g;
+                s_lrg += lr * g;
+                s_gg += g * g;
             }
         }
-        let n = samples.len() as f32;
-        let (ml, mr, mg) = (sl / n, sr / n, sg / n);
-        let (mut num, mut energy) = (0.0f32, 0.0f32);
-        for &(l, r, g) in &samples {
-            // Raising d moves the right samples left: r changes by -g per px.
-            let e = (l - ml) - (r - mr);
-            let gz = g - mg;
-            num += e * gz;
-            energy += gz * gz;
-        }
-        Some((-num / energy.max(1e-12), energy, n))
+        let side = (2 * half + 1) as f64;
+        let n = side * side;
+        // Raising d moves the right samples left: r changes by -g per px.
+        let num = s_lrg - s_lr * s_g / n;
+        let energy = (s_gg - s_g * s_g / n).max(0.0);
+        Some(((-num / energy.max(1e-12)) as f32, energy as f32, n as f32))
     }
 }
 

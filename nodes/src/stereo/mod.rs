@@ -24,7 +24,7 @@ mod triangulate;
 pub use dense::{
     Aggregated, BlockCost, CensusCosts, CostRows, CostVolume, DisparityRange, FillParams,
     GreyImage, Isa, MAX_SIDE, MatchCost, Paths, RefineParams, SelectParams, SgmConfig, SgmParams,
-    SlantedParams, aggregate, block_match, bt_costs, census_costs, census_transform,
+    SlantedParams, WindowShape, aggregate, block_match, bt_costs, census_costs, census_transform,
     check_bt_window, check_census_window, check_pair, check_penalties, fill_disparity,
     filter_speckles, flat_windows, noise_sigma, refine_disparity, refine_slanted, select,
     sgm_disparity, speckle_size_px,

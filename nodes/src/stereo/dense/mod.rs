@@ -34,6 +34,6 @@ pub use select::{SelectParams, select};
 pub use sgm::{Aggregated, Paths, SgmParams, aggregate, check_penalties};
 pub use sgm_disparity::{MatchCost, SgmConfig, check_bt_window, sgm_disparity, speckle_size_px};
 pub use simd::Isa;
-pub use slanted::{SlantedParams, refine_slanted};
+pub use slanted::{SlantedParams, WindowShape, refine_slanted};
 pub use texture::{flat_windows, noise_sigma, pair_noise_dn};
 pub use volume::{CostRows, CostVolume};

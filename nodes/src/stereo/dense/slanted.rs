@@ -1,22 +1,47 @@
 //! Sub-pixel refinement of disparities on slanted windows: around each valid
 //! disparity, the shift that best aligns a window of the left image with the
-//! right image when the window is warped by the surface's own slant, the
-//! disparity gradient of the (filled, smoothed) map around it, as PatchMatch
-//! stereo's slanted support windows do (Bleyer, Rhemann & Rother, BMVC
-//! 2011). A square window assumes a fronto-parallel surface: on a slanted one
-//! (the dome's flanks, seen obliquely) the left window's columns meet the
-//! right image at disparities that differ by the slope times their offset,
-//! and the best single shift is biased where texture is weak and uneven
-//! across the window. Zero-mean sum of squared differences, Gauss-Newton on
-//! the shift, the right image linearly interpolated along its rows.
-//! Written here: no crate refines disparities.
+//! right image when the window is warped by the surface's own shape, a
+//! quadratic fitted to the (filled, smoothed) map over the window, as
+//! PatchMatch stereo's slanted support windows do with planes (Bleyer,
+//! Rhemann & Rother, BMVC 2011). A square window assumes a fronto-parallel
+//! surface: on a slanted one (the dome's flanks, seen obliquely) the left
+//! window's columns meet the right image at disparities that differ by the
+//! slope times their offset, and the best single shift is biased where
+//! texture is weak and uneven across the window; the quadratic also follows
+//! the dome's bends, so weak texture can take large windows.
+//!
+//! A window grows (from `half_window`, by half again, up to
+//! `max_half_window`) while its gradients predict the shift worse than
+//! `target_px`, and only while the larger window fits no worse: its residual
+//! per pixel after the best shift must not exceed the smaller window's (or
+//! the pair's noise, whichever is larger). A window reaching across a depth
+//! edge or an occlusion, where the warp is wrong, fits worse and is not
+//! taken. Zero-mean sum of squared differences, Gauss-Newton on the shift,
+//! the right image linearly interpolated along its rows. Written here: no
+//! crate refines disparities.
 
 use super::pair::GreyImage;
+use nalgebra::{SMatrix, SVector};
 use rayon::prelude::*;
 
-/// How far the map may leave a window's plane at its rim for the window to
-/// grow that far, px.
-const OFF_PLANE_PX: f32 = 0.5;
+/// Map samples further than this from a window's first fitted shape are
+/// left out of its refit (a depth edge, a filled hole), px.
+const OFF_SHAPE_PX: f64 = 0.5;
+
+/// The map samples a window's shape is fitted to: a grid of this many
+/// columns and rows spanning the window.
+const SHAPE_GRID: isize = 7;
+
+/// How a window is warped to follow the surface.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum WindowShape {
+    /// Not at all: a fronto-parallel square (classic refinement).
+    Square,
+    /// By the plane fitted to the map over the window.
+    Plane,
+    /// By the quadratic fitted to the map over the window (slant and bend).
+    Quadratic,
+}
 
 /// How the slanted refinement runs.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -36,9 +61,8 @@ pub struct SlantedParams {
     /// Largest change from the input disparity, px; beyond it the input is
     /// kept.
     pub max_change_px: f32,
-    /// Distance over which the slope is measured, px (central differences
-    /// `slope_step` px either side); 0 = square windows (no slant).
-    pub slope_step: usize,
+    /// How windows follow the surface.
+    pub shape: WindowShape,
 }
 
 impl Default for SlantedParams {
@@ -49,7 +73,7 @@ impl Default for SlantedParams {
             target_px: 0.0,
             iterations: 4,
             max_change_px: 1.0,
-            slope_step: 3,
+            shape: WindowShape::Quadratic,
         }
     }
 }
@@ -79,8 +103,19 @@ pub fn refine_slanted(
     let sigma = super::pair_noise_dn(left, right, disparity)
         .unwrap_or_else(|| super::noise_sigma(left).max(super::noise_sigma(right)))
         .max(12f64.recip().sqrt()) as f32;
+    let pair = Pair::new(left, right);
     let halves = window_halves(p);
-    let k = p.slope_step as isize;
+    let fits: Vec<Option<ShapeFit>> = halves
+        .iter()
+        .map(|&hw| match p.shape {
+            WindowShape::Square => None,
+            WindowShape::Plane => Some(ShapeFit::new(hw as isize, false)),
+            WindowShape::Quadratic => Some(ShapeFit::new(hw as isize, true)),
+        })
+        .collect();
+    // Residual per pixel no larger window need beat: the pair's noise, two
+    // images' worth.
+    let noise_floor = 2.0 * sigma * sigma;
     let refined: Vec<(f32, bool)> = (0..w * h)
         .into_par_iter()
         .map(|i| {
@@ -89,56 +124,59 @@ pub fn refine_slanted(
                 return (d0, false);
             }
             let (x, y) = ((i % w) as isize, (i / w) as isize);
-            let slope = |a: Option<f32>, b: Option<f32>| match (a, b) {
-                (Some(a), Some(b)) if k > 0 => (b - a) / (2 * k) as f32,
-                _ => 0.0,
-            };
-            let window = Window {
+            let mut window = Window {
                 x,
                 y,
-                gx: slope(d_at(x - k, y), d_at(x + k, y)),
-                gy: slope(d_at(x, y - k), d_at(x, y + k)),
+                shape: [0.0; 5],
             };
-            // The smallest window whose gradients pin the shift well enough.
+            // The smallest window whose gradients pin the shift well enough,
+            // and its shape.
             let mut half = None;
+            let mut chosen = window.shape;
+            let mut first_step = None;
+            let mut residual_before = 0.0f32;
             for (n, &hw) in halves.iter().enumerate() {
-                // A larger window only where the surface stays on the
-                // window's plane out to it (not across a depth edge or
-                // round a bend the plane does not follow).
-                let r = hw as isize;
-                let planar = |&(i, j): &(isize, isize)| {
-                    d_at(x + i, y + j).is_some_and(|d| {
-                        (d - (d0 + window.gx * i as f32 + window.gy * j as f32)).abs()
-                            <= OFF_PLANE_PX
-                    })
+                if let Some(fit) = &fits[n] {
+                    match fit.shape_at(&d_at, x, y) {
+                        Some(shape) => window.shape = shape,
+                        // Too little map around to grow on (the smallest
+                        // window is refined unwarped).
+                        None if n > 0 => break,
+                        None => {}
+                    }
+                }
+                let Some(fit) = window.step(&pair, d0, hw) else {
+                    break;
                 };
-                let rim = [
-                    (-r, -r),
-                    (0, -r),
-                    (r, -r),
-                    (-r, 0),
-                    (r, 0),
-                    (-r, r),
-                    (0, r),
-                    (r, r),
-                ];
-                if n > 0 && !rim.iter().all(planar) {
+                if n > 0 && fit.residual > residual_before.max(noise_floor) {
                     break;
                 }
-                let Some((_, energy, _)) = window.step(left, right, d0, hw) else {
-                    break;
-                };
+                residual_before = fit.residual;
                 half = Some(hw);
-                if std::f32::consts::SQRT_2 * sigma / energy.max(1e-6).sqrt() <= p.target_px {
+                chosen = window.shape;
+                let pinned =
+                    std::f32::consts::SQRT_2 * sigma / fit.energy.max(1e-6).sqrt() <= p.target_px;
+                first_step = Some(fit);
+                if pinned {
                     break;
                 }
             }
+            window.shape = chosen;
             let Some(half) = half else {
                 return (d0, false);
             };
             let mut d = d0;
-            for _ in 0..p.iterations {
-                let Some((step, energy, n)) = window.step(left, right, d, half) else {
+            for k in 0..p.iterations {
+                // The first step is the chosen window's, at d0, taken above.
+                let fit = if k == 0 {
+                    first_step.take()
+                } else {
+                    window.step(&pair, d, half)
+                };
+                let Some(Fit {
+                    step, energy, n, ..
+                }) = fit
+                else {
                     return (d0, false);
                 };
                 if energy < 0.1 * n {
@@ -177,58 +215,239 @@ fn window_halves(p: &SlantedParams) -> Vec<usize> {
     halves
 }
 
-/// A window around (x, y), slanted by the disparity gradient (gx, gy).
+/// A window around (x, y), warped by the map's local shape: the disparity
+/// at offset (i, j) px differs from the centre's by
+/// `gx i + gy j + gxx i^2 + gxy i j + gyy j^2` (`shape`, px per px^n).
 struct Window {
     x: isize,
     y: isize,
-    gx: f32,
-    gy: f32,
+    shape: [f32; 5],
+}
+
+/// Fits the map's local shape over windows of one size, as
+/// `Window::shape`: the least-squares quadratic (or plane) through the map's
+/// valid samples on a `SHAPE_GRID`-square grid spanning the window, refitted
+/// once without the samples more than `OFF_SHAPE_PX` off the first fit.
+struct ShapeFit {
+    /// The samples' offsets from the window's centre, px.
+    offsets: Vec<(isize, isize)>,
+    /// Each sample's fitted terms (1, u, v, u^2, u v, v^2; u, v in
+    /// half-windows; the bend's zero for a plane).
+    terms: Vec<SVector<f64, 6>>,
+    /// The fit when every sample is valid (the common case, and the
+    /// costly part: this runs for every pixel and window size): the
+    /// coefficients are `solve * samples`.
+    solve: Option<SMatrix<f64, 6, { (SHAPE_GRID * SHAPE_GRID) as usize }>>,
+    quadratic: bool,
+    /// Half-window, px.
+    scale: f64,
+}
+
+impl ShapeFit {
+    fn new(half: isize, quadratic: bool) -> ShapeFit {
+        let grid = |k: isize| {
+            ((2 * half * k - half * (SHAPE_GRID - 1)) as f64 / (SHAPE_GRID - 1) as f64).round()
+                as isize
+        };
+        let offsets: Vec<(isize, isize)> = (0..SHAPE_GRID)
+            .flat_map(|a| (0..SHAPE_GRID).map(move |b| (grid(b), grid(a))))
+            .collect();
+        let scale = half.max(1) as f64;
+        let bend = if quadratic { 1.0 } else { 0.0 };
+        let terms: Vec<SVector<f64, 6>> = offsets
+            .iter()
+            .map(|&(i, j)| {
+                let (u, v) = (i as f64 / scale, j as f64 / scale);
+                SVector::<f64, 6>::from([1.0, u, v, bend * u * u, bend * u * v, bend * v * v])
+            })
+            .collect();
+        let mut fit = ShapeFit {
+            offsets,
+            terms,
+            solve: None,
+            quadratic,
+            scale,
+        };
+        let all = vec![true; fit.terms.len()];
+        fit.solve = fit.normal_matrix(&all).try_inverse().map(|inverse| {
+            SMatrix::<f64, 6, { (SHAPE_GRID * SHAPE_GRID) as usize }>::from_fn(|r, k| {
+                (inverse * fit.terms[k])[r]
+            })
+        });
+        fit
+    }
+
+    /// The normal equations' matrix over the samples `used`.
+    fn normal_matrix(&self, used: &[bool]) -> SMatrix<f64, 6, 6> {
+        let mut a = SMatrix::<f64, 6, 6>::zeros();
+        for (t, _) in self.terms.iter().zip(used).filter(|(_, u)| **u) {
+            a += t * t.transpose();
+        }
+        if !self.quadratic {
+            // The bend's terms are zero: pin them.
+            for k in 3..6 {
+                a[(k, k)] = 1.0;
+            }
+        }
+        a
+    }
+
+    /// The least-squares coefficients through the samples `used`.
+    fn solve_over(&self, samples: &[f64], used: &[bool]) -> Option<SVector<f64, 6>> {
+        let mut b = SVector::<f64, 6>::zeros();
+        for ((t, d), _) in self
+            .terms
+            .iter()
+            .zip(samples)
+            .zip(used)
+            .filter(|(_, u)| **u)
+        {
+            b += t * *d;
+        }
+        self.normal_matrix(used).cholesky().map(|c| c.solve(&b))
+    }
+
+    /// The map's shape around (x, y); `None` with under half the samples
+    /// valid.
+    fn shape_at(
+        &self,
+        d_at: &impl Fn(isize, isize) -> Option<f32>,
+        x: isize,
+        y: isize,
+    ) -> Option<[f32; 5]> {
+        let mut samples = [0.0f64; (SHAPE_GRID * SHAPE_GRID) as usize];
+        let mut valid = [false; (SHAPE_GRID * SHAPE_GRID) as usize];
+        for (k, &(i, j)) in self.offsets.iter().enumerate() {
+            if let Some(d) = d_at(x + i, y + j) {
+                (samples[k], valid[k]) = (d as f64, true);
+            }
+        }
+        let count = valid.iter().filter(|v| **v).count();
+        if count * 2 < samples.len() {
+            return None;
+        }
+        let first = match &self.solve {
+            Some(solve) if count == samples.len() => {
+                solve * SVector::<f64, { (SHAPE_GRID * SHAPE_GRID) as usize }>::from(samples)
+            }
+            _ => self.solve_over(&samples, &valid)?,
+        };
+        let inliers: Vec<bool> = (0..samples.len())
+            .map(|k| valid[k] && (samples[k] - self.terms[k].dot(&first)).abs() <= OFF_SHAPE_PX)
+            .collect();
+        let c = if inliers == valid {
+            first
+        } else {
+            self.solve_over(&samples, &inliers).unwrap_or(first)
+        };
+        let (s1, s2) = (self.scale, self.scale * self.scale);
+        Some([
+            (c[1] / s1) as f32,
+            (c[2] / s1) as f32,
+            (c[3] / s2) as f32,
+            (c[4] / s2) as f32,
+            (c[5] / s2) as f32,
+        ])
+    }
+}
+
+/// The rectified pair as the windows read it: grey levels as floats, and
+/// the right image's row gradient (central differences, DN per px), both
+/// row-major.
+struct Pair {
+    width: usize,
+    height: usize,
+    left: Vec<f32>,
+    right: Vec<f32>,
+    right_gradient: Vec<f32>,
+}
+
+impl Pair {
+    fn new(left: &GreyImage, right: &GreyImage) -> Pair {
+        let w = right.width;
+        let floats = |img: &GreyImage| img.data.iter().map(|&v| v as f32).collect::<Vec<f32>>();
+        let right_gradient = (0..right.data.len())
+            .map(|i| {
+                let x = i % w;
+                if x == 0 || x + 1 == w {
+                    0.0
+                } else {
+                    0.5 * (right.data[i + 1] as f32 - right.data[i - 1] as f32)
+                }
+            })
+            .collect();
+        Pair {
+            width: w,
+            height: right.height,
+            left: floats(left),
+            right: floats(right),
+            right_gradient,
+        }
+    }
+}
+
+/// One Gauss-Newton step of a window at a disparity.
+struct Fit {
+    /// The step to the best shift, px.
+    step: f32,
+    /// The zero-mean right gradients' energy, DN^2 per px^2.
+    energy: f32,
+    /// The window's pixel count.
+    n: f32,
+    /// The zero-mean residual per pixel left after the step (linearised),
+    /// DN^2.
+    residual: f32,
 }
 
 impl Window {
     /// One Gauss-Newton step of the disparity `d` on the window of
-    /// half-size `half`: the step, the zero-mean right gradients' energy
-    /// and the window's pixel count; `None` where the window leaves either
-    /// image.
-    fn step(
-        &self,
-        left: &GreyImage,
-        right: &GreyImage,
-        d: f32,
-        half: usize,
-    ) -> Option<(f32, f32, f32)> {
-        let (w, h) = (left.width, left.height);
+    /// half-size `half`; `None` where the window leaves either image.
+    fn step(&self, pair: &Pair, d: f32, half: usize) -> Option<Fit> {
+        let (w, h) = (pair.width, pair.height);
         let half = half as isize;
         let (x, y) = (self.x, self.y);
         if x - half < 0 || y - half < 0 || x + half >= w as isize || y + half >= h as isize {
             return None;
         }
-        let at = |img: &GreyImage, x: usize, y: usize| img.data[x + y * w] as f64;
         // One pass of sums (no buffer per window: this runs for every pixel
         // and iteration): with e = (l - r) - mean(l - r) and gz = g - mean(g),
         // sum(e gz) = sum((l - r) g) - n mean(l - r) mean(g), and
         // sum(gz^2) = sum(g^2) - n mean(g)^2.
-        let (mut s_lr, mut s_g, mut s_lrg, mut s_gg) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+        let (mut s_lr, mut s_lrlr, mut s_g, mut s_lrg, mut s_gg) = (0.0f64, 0.0, 0.0, 0.0, 0.0);
+        let [gx, gy, gxx, gxy, gyy] = self.shape;
         for j in -half..=half {
             let yy = (y + j) as usize;
+            let row = yy * w..(yy + 1) * w;
+            let (left_row, right_row, gradient_row) = (
+                &pair.left[row.clone()],
+                &pair.right[row.clone()],
+                &pair.right_gradient[row],
+            );
+            let jf = j as f32;
+            // The warp along this row: d + (gy j + gyy j^2) + (gx + gxy j) i + gxx i^2.
+            let (base, linear) = (d + gy * jf + gyy * jf * jf, gx + gxy * jf);
             for ii in -half..=half {
-                let xr = (x + ii) as f32 - (d + self.gx * ii as f32 + self.gy * j as f32);
+                let i = ii as f32;
+                let xr = (x + ii) as f32 - (base + linear * i + gxx * i * i);
                 if xr < 1.0 || xr >= (w - 2) as f32 {
                     return None;
                 }
-                let x0 = xr.floor();
-                let t = (xr - x0) as f64;
-                let x0 = x0 as usize;
-                let (r0, r1) = (at(right, x0, yy), at(right, x0 + 1, yy));
-                let r = r0 + (r1 - r0) * t;
+                // xr >= 1: truncation is the floor (and no libm call).
+                let x0 = xr as usize;
+                let t = xr - x0 as f32;
+                let (&[r0, r1], &[g0, g1]) = (
+                    right_row[x0..x0 + 2].as_array()?,
+                    gradient_row[x0..x0 + 2].as_array()?,
+                );
+                let r = (r0 + (r1 - r0) * t) as f64;
                 // The gradient of the interpolated row: its slope between
                 // the samples around.
-                let g = 0.5
-                    * ((r1 - at(right, x0 - 1, yy)) * (1.0 - t) + (at(right, x0 + 2, yy) - r0) * t);
-                let lr = at(left, (x + ii) as usize, yy) - r;
+                let g = (g0 + (g1 - g0) * t) as f64;
+                let lr = left_row[(x + ii) as usize] as f64 - r;
                 s_lr += lr;
                 s_g += g;
                 s_lrg += lr * g;
+                s_lrlr += lr * lr;
                 s_gg += g * g;
             }
         }
@@ -237,7 +456,14 @@ impl Window {
         // Raising d moves the right samples left: r changes by -g per px.
         let num = s_lrg - s_lr * s_g / n;
         let energy = (s_gg - s_g * s_g / n).max(0.0);
-        Some(((-num / energy.max(1e-12)) as f32, energy as f32, n as f32))
+        // sum(e^2) less what the step explains: num^2 / energy.
+        let rss = (s_lrlr - s_lr * s_lr / n - num * num / energy.max(1e-12)).max(0.0);
+        Some(Fit {
+            step: (-num / energy.max(1e-12)) as f32,
+            energy: energy as f32,
+            n: n as f32,
+            residual: (rss / n) as f32,
+        })
     }
 }
 
@@ -246,10 +472,16 @@ mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
 
-    /// A weakly textured plane slanted along the rows: true disparity
-    /// `d0 + slope * x`; the right image is the left one warped by it
-    /// (smooth texture, so linear interpolation is close to exact).
-    fn slanted_pair(w: usize, h: usize, d0: f32, slope: f32) -> (GreyImage, GreyImage, Vec<f32>) {
+    /// A weakly textured surface whose true disparity depends on the column
+    /// only, `truth(x)` px (at most `max_d`); the right image is the left one
+    /// warped by it, each right pixel seeing the nearest surface point on
+    /// its ray (smooth texture, so linear interpolation is close to exact).
+    fn pair_of(
+        w: usize,
+        h: usize,
+        truth: impl Fn(f32) -> f32,
+        max_d: f32,
+    ) -> (GreyImage, GreyImage, Vec<f32>) {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
         // Smooth texture: sums of random sinusoids, 12 grey levels of contrast.
         let waves: Vec<(f32, f32, f32, f32)> = (0..12)
@@ -271,29 +503,32 @@ mod tests {
         };
         let mut left = vec![0u8; w * h];
         let mut right = vec![0u8; w * h];
-        let truth: Vec<f32> = (0..w * h).map(|i| d0 + slope * (i % w) as f32).collect();
         for y in 0..h {
             for x in 0..w {
                 left[x + y * w] = texture(x as f32, y as f32).round() as u8;
-                // Right pixel xr sees the left point x with x - d(x) = xr:
-                // x = (xr + d0) / (1 - slope).
-                let xl = (x as f32 + d0) / (1.0 - slope);
+                // Right pixel xr sees the left point xl with xl - d(xl) = xr:
+                // the fixed point from the nearest disparity down, so that
+                // of two surfaces on the ray the nearer one is seen.
+                let mut xl = x as f32 + max_d;
+                for _ in 0..100 {
+                    xl = x as f32 + truth(xl);
+                }
                 right[x + y * w] = texture(xl, y as f32).round() as u8;
             }
         }
-        (
-            GreyImage {
-                width: w,
-                height: h,
-                data: left,
-            },
-            GreyImage {
-                width: w,
-                height: h,
-                data: right,
-            },
-            truth,
-        )
+        let grey = |data| GreyImage {
+            width: w,
+            height: h,
+            data,
+        };
+        let truth = (0..w * h).map(|i| truth((i % w) as f32)).collect();
+        (grey(left), grey(right), truth)
+    }
+
+    /// A weakly textured plane slanted along the rows: true disparity
+    /// `d0 + slope * x`.
+    fn slanted_pair(w: usize, h: usize, d0: f32, slope: f32) -> (GreyImage, GreyImage, Vec<f32>) {
+        pair_of(w, h, |x| d0 + slope * x, d0 + slope * w as f32)
     }
 
     /// Mean absolute error against `truth` (row-major, `w` wide) over the
@@ -321,7 +556,7 @@ mod tests {
         let (slanted, changed) = refine_slanted(&left, &right, &biased, &SlantedParams::default());
         assert!(changed > w * h / 2, "{changed} refined");
         let square = SlantedParams {
-            slope_step: 0,
+            shape: WindowShape::Square,
             ..SlantedParams::default()
         };
         let (flat, _) = refine_slanted(&left, &right, &biased, &square);
@@ -352,6 +587,90 @@ mod tests {
         assert!(
             growing_error < 0.7 * fixed_error,
             "mean error: fixed window {fixed_error:.4} px, growing {growing_error:.4} px"
+        );
+    }
+
+    /// Mean absolute error against `truth` over the rows `margin` px inside
+    /// the image and the columns `columns`.
+    fn mean_error_over(
+        v: &[f32],
+        truth: &[f32],
+        w: usize,
+        margin: usize,
+        columns: std::ops::Range<usize>,
+    ) -> f64 {
+        let h = truth.len() / w;
+        let (mut sum, mut n) = (0.0, 0);
+        for y in margin..h - margin {
+            for x in columns.clone() {
+                sum += (v[x + y * w] - truth[x + y * w]).abs() as f64;
+                n += 1;
+            }
+        }
+        sum / n as f64
+    }
+
+    /// Growing windows, on weak texture (from 9 px up to 21 px).
+    fn growing() -> SlantedParams {
+        SlantedParams {
+            max_half_window: 10,
+            target_px: 0.02,
+            ..SlantedParams::default()
+        }
+    }
+
+    #[test]
+    fn windows_do_not_grow_across_a_depth_edge() {
+        // Far surface (20 px) left of column 130, near one (28 px) right of
+        // it: left pixels 122-129 are hidden from the right camera.
+        let (w, h) = (230, 70);
+        let (left, right, truth) = pair_of(w, h, |x| if x < 130.0 { 20.0 } else { 28.0 }, 28.0);
+        // The input as a filled map has it: the edge smeared over 9 px, and
+        // 0.3 px off.
+        let smeared: Vec<f32> = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                let span = x.saturating_sub(4)..(x + 5).min(w);
+                let n = span.len() as f32;
+                span.map(|xx| truth[xx + y * w]).sum::<f32>() / n + 0.3
+            })
+            .collect();
+        let (a, _) = refine_slanted(&left, &right, &smeared, &SlantedParams::default());
+        let (b, _) = refine_slanted(&left, &right, &smeared, &growing());
+        let error = |v: &[f32], columns| mean_error_over(v, &truth, w, 16, columns);
+        // Beside the edge, where the input is right but a grown window
+        // would reach across the edge (without the test of its fit: 0.3 px
+        // on the left).
+        for band in [104..118, 138..152] {
+            let (fixed, grown) = (error(&a, band.clone()), error(&b, band.clone()));
+            assert!(
+                grown <= fixed + 0.05,
+                "columns {band:?}: fixed window {fixed:.3} px, growing {grown:.3} px"
+            );
+        }
+        // Away from it, windows grow as on any weak texture.
+        let (fixed, grown) = (error(&a, 150..210), error(&b, 150..210));
+        assert!(
+            grown < 0.7 * fixed,
+            "fixed {fixed:.3} px, growing {grown:.3} px"
+        );
+    }
+
+    #[test]
+    fn a_bent_surface_is_followed_by_the_quadratic_not_the_plane() {
+        let (w, h) = (220, 70);
+        let bend = |x: f32| 20.0 + 0.004 * (x - 110.0).powi(2);
+        let (left, right, truth) = pair_of(w, h, bend, bend(0.0));
+        let biased: Vec<f32> = truth.iter().map(|d| d + 0.4).collect();
+        let on = |shape| {
+            let params = SlantedParams { shape, ..growing() };
+            let (v, _) = refine_slanted(&left, &right, &biased, &params);
+            mean_error_over(&v, &truth, w, 16, 60..170)
+        };
+        let (quadratic, plane) = (on(WindowShape::Quadratic), on(WindowShape::Plane));
+        assert!(
+            quadratic < 0.7 * plane,
+            "mean error: quadratic {quadratic:.4} px, plane {plane:.4} px"
         );
     }
 }

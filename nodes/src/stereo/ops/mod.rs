@@ -19,7 +19,7 @@ pub use fill_disparity::{FillDisparity, FillDisparityInputs, FillDisparityOutput
 pub use hsv_markers::{BLOB_COLUMNS, HsvMarkers, HsvMarkersInputs, HsvMarkersOutputs};
 pub use match_features::{MatchFeatures, MatchFeaturesInputs, MatchFeaturesOutputs};
 pub use matcher::{DisparityOutputs, MatcherInputs, MatcherParams, Refine};
-pub use refine_slanted::{RefineSlanted, RefineSlantedInputs, RefineSlantedOutputs};
+pub use refine_slanted::{RefineSlanted, RefineSlantedInputs, RefineSlantedOutputs, Warp};
 pub use sgm::{Sgm, SgmCost};
 pub use triangulate::{Triangulate, TriangulateInputs, TriangulateOutputs};
 

@@ -1,23 +1,24 @@
 //! `stereo.refine_slanted`: sub-pixel refinement of a disparity map on
-//! windows slanted by the map's own gradient.
+//! windows warped by the map's own local shape.
 
 use super::shape_error;
-use crate::stereo::{GreyImage, SlantedParams, refine_slanted};
+use crate::stereo::{GreyImage, SlantedParams, WindowShape, refine_slanted};
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Disparity, Image};
 
-/// Disparities refined on windows slanted by the surface's own disparity
-/// gradient (zero-mean SSD, Gauss-Newton): no fronto-parallel bias on
-/// slanted, weakly textured surfaces -> Disparity
+/// Disparities refined on windows warped by the surface's own shape, a
+/// quadratic fitted to the map (zero-mean SSD, Gauss-Newton): no
+/// fronto-parallel bias on slanted surfaces, and windows that grow on weak
+/// texture while they fit -> Disparity
 #[derive(Debug, Clone, PartialEq, Op)]
-#[op(name = "stereo.refine_slanted", version = 2)]
+#[op(name = "stereo.refine_slanted", version = 3)]
 pub struct RefineSlanted {
     /// Smallest window side (odd)
     #[param(default = 9, unit = "px", min = 3, max = 31)]
     pub window_px: usize,
     /// Largest window side (odd): a window grows until its gradients
-    /// predict the shift to within target_px (weak texture), or reaches
-    /// this
+    /// predict the shift to within target_px (weak texture), while it fits
+    /// the pair no worse than the smaller one, up to this
     #[param(default = 21, unit = "px", min = 3, max = 31)]
     pub max_window_px: usize,
     /// The shift's predicted standard deviation a window must reach
@@ -30,10 +31,21 @@ pub struct RefineSlanted {
     /// Largest change from the input disparity; beyond it the input is kept
     #[param(default = 1.0, unit = "px", min = 0.0)]
     pub max_change_px: f64,
-    /// The slope is measured this far either side (central differences);
-    /// 0 = square windows, no slant
-    #[param(default = 3, unit = "px", min = 0, max = 50)]
-    pub slope_step_px: usize,
+    /// How windows follow the surface: the quadratic or the plane fitted
+    /// to the map over the window, or not at all (square)
+    #[param(default = Warp::Quadratic)]
+    pub warp: Warp,
+}
+
+/// How a refinement window follows the surface.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Choice)]
+pub enum Warp {
+    /// By the quadratic fitted to the map over the window (slant and bend).
+    Quadratic,
+    /// By the plane fitted to the map over the window.
+    Plane,
+    /// Not at all: fronto-parallel squares.
+    Square,
 }
 
 #[derive(Inputs)]
@@ -70,7 +82,11 @@ impl RefineSlanted {
             target_px: self.target_px as f32,
             iterations: self.iterations,
             max_change_px: self.max_change_px as f32,
-            slope_step: self.slope_step_px,
+            shape: match self.warp {
+                Warp::Quadratic => WindowShape::Quadratic,
+                Warp::Plane => WindowShape::Plane,
+                Warp::Square => WindowShape::Square,
+            },
         })
     }
 }

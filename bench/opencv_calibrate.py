@@ -52,6 +52,11 @@ def main() -> None:
         t, (rms, K, D, _, _) = best_of(a.repeat, lambda: cv2.calibrateCamera(O, I, size, None, None, flags=flags))
         print(f"{who}: {len(O)} views, rms {rms:.6f} px; fx {K[0, 0]:.4f} fy {K[1, 1]:.4f} "
               f"cx {K[0, 2]:.4f} cy {K[1, 2]:.4f}; k1 {D[0, 0]:.6f} k2 {D[0, 1]:.6f}")
+        # Each parameter's standard deviation (calibrateCameraExtended, not timed).
+        _, _, _, _, _, sd, _, _ = cv2.calibrateCameraExtended(O, I, size, None, None, flags=flags)
+        sd = sd.ravel()
+        print(f"standard deviations (calibrateCameraExtended): fx {sd[0]:.4f} fy {sd[1]:.4f} "
+              f"cx {sd[2]:.4f} cy {sd[3]:.4f} px; k1 {sd[4]:.6f} k2 {sd[5]:.6f} p1 {sd[6]:.7f} p2 {sd[7]:.7f}")
         print(f"calibrateCamera, best of {a.repeat}: {t * 1e3:.1f} ms")
         return
     L, R = image(4), image(6)
@@ -67,6 +72,11 @@ def main() -> None:
           f"left fx {K1[0, 0]:.4f} fy {K1[1, 1]:.4f} cx {K1[0, 2]:.4f} cy {K1[1, 2]:.4f}; "
           f"baseline {np.linalg.norm(T):.5f} mm")
     print(f"calibrateCamera x 2 + stereoCalibrate, best of {a.repeat}: {t * 1e3:.1f} ms")
+    # Each camera's standard deviations alone (calibrateCameraExtended, not timed).
+    for name, I in (("left", L), ("right", R)):
+        sd = cv2.calibrateCameraExtended(O, I, size, None, None, flags=flags)[5].ravel()
+        print(f"{name} camera's standard deviations alone (calibrateCameraExtended): fx {sd[0]:.4f} "
+              f"fy {sd[1]:.4f} cx {sd[2]:.4f} cy {sd[3]:.4f} px; k1 {sd[4]:.6f}")
 
 
 if __name__ == "__main__":

@@ -105,6 +105,12 @@ pub fn run_camera(
         k.distortion[0],
         k.distortion[1]
     );
+    let sd = c.intrinsics_sd();
+    println!(
+        "standard deviations: fx {:.4} fy {:.4} cx {:.4} cy {:.4} px; k1 {:.6} k2 {:.6} p1 {:.7} \
+         p2 {:.7}",
+        sd[0], sd[1], sd[2], sd[3], sd[4], sd[5], sd[6], sd[7]
+    );
     println!(
         "camera calibration, best of {repeat}: {:.1} ms ({} iterations)",
         best * 1e3,
@@ -265,6 +271,32 @@ pub fn run(pairing: &Pairing, repeat: usize, out: Option<&Path>) -> anyhow::Resu
         s.left.cy,
         s.left_to_right.translation.vector.norm()
     );
+    for (side, name) in ["left", "right"].iter().enumerate() {
+        let alone = s.mono[side].intrinsics_sd();
+        let joint = s.intrinsics_sd(side);
+        println!(
+            "{name} camera's standard deviations, alone / jointly: fx {:.4} / {:.4}, fy {:.4} / \
+             {:.4}, cx {:.4} / {:.4}, cy {:.4} / {:.4} px; k1 {:.6} / {:.6}",
+            alone[0],
+            joint[0],
+            alone[1],
+            joint[1],
+            alone[2],
+            joint[2],
+            alone[3],
+            joint[3],
+            alone[4],
+            joint[4]
+        );
+    }
+    if let Some(rig) = s.rig_spread() {
+        let (r, t) = (rig.rotation_sd_deg(), rig.translation_sd_mm());
+        println!(
+            "rig's standard deviations: rotation {:.5} {:.5} {:.5} deg, translation {:.4} {:.4} \
+             {:.4} mm, baseline {:.4} mm",
+            r[0], r[1], r[2], t[0], t[1], t[2], rig.baseline_sd_mm
+        );
+    }
     println!(
         "stereo calibration (both cameras alone, then together), best of {repeat}: {:.1} ms",
         best * 1e3

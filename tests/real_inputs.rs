@@ -109,6 +109,21 @@ fn photos_pair_by_the_number_in_their_names() {
         (m["stereo.baseline_mm"].as_f64().unwrap() - 55.0).abs() < 0.5,
         "{m}"
     );
+    // Every estimated parameter's standard deviation, and each pair's RMS.
+    for key in [
+        "left_fx_sd_px",
+        "right_cy_sd_px",
+        "left_k1_sd",
+        "baseline_sd_mm",
+        "rotation_y_sd_deg",
+        "translation_z_sd_mm",
+        "left_residual_sd_px",
+    ] {
+        let sd = m[format!("stereo.{key}")].as_f64();
+        assert!(sd.is_some_and(|v| v > 0.0 && v < 1.0), "{key}: {m}");
+    }
+    assert!(m.get("stereo.left_k3_sd").is_none(), "k3 is held: {m}");
+    assert!(m["stereo.pair_0_rms_px"].as_f64().unwrap() < 0.2, "{m}");
     let left = notes(&r, "left_corners");
     assert!(
         left.iter()

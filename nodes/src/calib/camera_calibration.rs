@@ -6,6 +6,7 @@ use super::homography::homography;
 use super::lm::{LeastSquares, levenberg_marquardt};
 use super::normal_equations::BlockNormal;
 use super::reprojection::{Pose, corner_residual};
+use super::uncertainty::Spread;
 use super::zhang::{intrinsics_from_homographies, pose_from_homography};
 use crate::camera::CameraModel;
 use nalgebra::{
@@ -55,6 +56,28 @@ pub struct CameraCalibration {
     pub iterations: usize,
     /// Whether LM reached the minimum (rather than its iteration limit).
     pub converged: bool,
+    /// The estimated intrinsics' spread, in `estimated`'s order; `None` when
+    /// J^T J is singular at the optimum.
+    pub spread: Option<Spread>,
+    /// Solver-order indices (fx, fy, cx, cy, k1, k2, p1, p2, k3) of the
+    /// estimated intrinsics.
+    pub estimated: Vec<usize>,
+}
+
+impl CameraCalibration {
+    /// Standard deviation of each intrinsic in solver order (fx, fy, cx, cy
+    /// in px, then k1, k2, p1, p2, k3), 0 for one held fixed and NaN without
+    /// a spread.
+    pub fn intrinsics_sd(&self) -> [f64; 9] {
+        let mut sd = [0.0; 9];
+        let covariance = self.spread.as_ref().and_then(Spread::covariance);
+        for (k, &i) in self.estimated.iter().enumerate() {
+            sd[i] = covariance
+                .as_ref()
+                .map_or(f64::NAN, |c| c[(k, k)].max(0.0).sqrt());
+        }
+        sd
+    }
 }
 
 /// Intrinsic parameters in solver order: fx, fy, cx, cy, k1, k2, p1, p2, k3.
@@ -340,6 +363,16 @@ pub fn calibrate_camera(
         })
         .collect();
     let corners: usize = views.iter().map(|v| v.board_mm.len()).sum();
+    let residuals = problem.residuals(&report.x);
+    let spread = problem
+        .normal_equations(&report.x, &residuals)
+        .shared_inverse()
+        .map(|unit_covariance| Spread {
+            unit_covariance,
+            cost: report.cost,
+            residuals: residuals.len(),
+            parameters: report.x.len(),
+        });
     Ok(CameraCalibration {
         camera,
         poses,
@@ -347,6 +380,8 @@ pub fn calibrate_camera(
         view_rms_px,
         iterations: report.iterations,
         converged: report.converged,
+        spread,
+        estimated: free,
     })
 }
 
@@ -485,5 +520,46 @@ pub(crate) mod tests {
         );
         let same = vec![views[0].clone(), views[0].clone(), views[0].clone()];
         assert!(calibrate_camera(&same, 800, 600, [true; 5]).is_err());
+    }
+
+    /// Mean and sample standard deviation.
+    pub(crate) fn mean_and_sd(values: &[f64]) -> (f64, f64) {
+        let n = values.len() as f64;
+        let mean = values.iter().sum::<f64>() / n;
+        let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
+        (mean, var.sqrt())
+    }
+
+    /// Asserts that an observed spread is within 25 % of the predicted one
+    /// (200 draws estimate a standard deviation to about 5 %).
+    pub(crate) fn assert_spread(name: &str, predicted: f64, observed: f64) {
+        assert!(
+            observed > 0.8 * predicted && observed < 1.25 * predicted,
+            "{name}: predicted sd {predicted:.4e}, observed over the draws {observed:.4e}"
+        );
+    }
+
+    #[test]
+    fn the_intrinsics_spread_matches_a_monte_carlo_of_the_corners_noise() {
+        let truth = true_camera();
+        let exact = views_of(&truth, &true_poses());
+        let free = [true, true, true, true, false];
+        let draws: Vec<CameraCalibration> = (0..200)
+            .map(|seed| {
+                calibrate_camera(&with_noise(exact.clone(), 0.2, seed), 800, 600, free).unwrap()
+            })
+            .collect();
+        // fx, fy, cx, cy, k1, k2 in solver order.
+        for (i, name) in ["fx", "fy", "cx", "cy", "k1", "k2"].iter().enumerate() {
+            let predicted =
+                draws.iter().map(|c| c.intrinsics_sd()[i]).sum::<f64>() / draws.len() as f64;
+            let values: Vec<f64> = draws
+                .iter()
+                .map(|c| intrinsic_vector(&c.camera)[i])
+                .collect();
+            assert_spread(name, predicted, mean_and_sd(&values).1);
+        }
+        // k3 was held: no spread.
+        assert_eq!(draws[0].intrinsics_sd()[8], 0.0);
     }
 }

@@ -14,6 +14,7 @@ mod reprojection;
 mod stereo;
 mod subpixel;
 mod tables;
+mod uncertainty;
 mod views;
 mod zhang;
 
@@ -26,8 +27,9 @@ pub use homography::homography;
 pub use lm::{LeastSquares, LmReport, levenberg_marquardt};
 pub use normal_equations::{BlockNormal, DampedSystem, DenseNormal};
 pub use rectify::{StereoRectification, rectify, remap};
-pub use stereo::{StereoCalibration, calibrate_stereo};
+pub use stereo::{RigSpread, StereoCalibration, calibrate_stereo};
 pub use subpixel::{refine_corner, window_for_square};
+pub use uncertainty::{Spread, block3, residual_variance, standard_deviations};
 pub use views::{
     IMAGE_EXTENSIONS, NumberedPhotos, Pairing, PhotoRecord, SAME_POSE_PX, Side,
     max_corner_shift_px, numbered_photos, pair_views, repeated_poses, usual_size, view_number,

@@ -132,15 +132,34 @@ impl BlockNormal {
     }
 }
 
-impl DampedSystem for BlockNormal {
-    fn solve_damped(&self, lambda: f64) -> Option<DVector<f64>> {
+impl BlockNormal {
+    /// The shared parameters' part of (J^T J)^-1: the inverse of the
+    /// undamped Schur complement S = U - sum W_i^T V_i^-1 W_i, which at a
+    /// least-squares optimum, times the residuals' variance, is those
+    /// parameters' covariance with the poses marginalised out. `None` when
+    /// J^T J is singular (a parameter the residuals do not determine).
+    pub fn shared_inverse(&self) -> Option<DMatrix<f64>> {
+        let (s, _, _) = self.schur(0.0)?;
+        s.cholesky().map(|c| c.inverse())
+    }
+
+    /// The Schur complement of the damped system, its right-hand side, and
+    /// per view V_i^-1 W_i and V_i^-1 g_i for the back-substitution.
+    #[allow(clippy::type_complexity)]
+    fn schur(
+        &self,
+        lambda: f64,
+    ) -> Option<(
+        DMatrix<f64>,
+        DVector<f64>,
+        Vec<(DMatrix<f64>, Vector6<f64>)>,
+    )> {
         let n = self.g.len();
         let mut s = self.symmetric_u();
         for i in 0..n {
             s[(i, i)] += lambda * self.u[(i, i)].max(DIAGONAL_FLOOR);
         }
         let mut rhs = -&self.g;
-        // Per view: V_i^-1 W_i and V_i^-1 g_i, kept for the back-substitution.
         let mut eliminated = Vec::with_capacity(self.views.len());
         for block in &self.views {
             let mut v = block.v;
@@ -154,6 +173,14 @@ impl DampedSystem for BlockNormal {
             rhs += block.w.tr_mul(&vinv_g);
             eliminated.push((vinv_w, vinv_g));
         }
+        Some((s, rhs, eliminated))
+    }
+}
+
+impl DampedSystem for BlockNormal {
+    fn solve_damped(&self, lambda: f64) -> Option<DVector<f64>> {
+        let n = self.g.len();
+        let (s, rhs, eliminated) = self.schur(lambda)?;
         let shared_step = s.cholesky()?.solve(&rhs);
         let mut step = DVector::zeros(n + 6 * self.views.len());
         step.rows_mut(0, n).copy_from(&shared_step);
@@ -225,5 +252,17 @@ mod tests {
                 "lambda {lambda}: {a} vs {b}"
             );
         }
+    }
+
+    #[test]
+    fn the_shared_inverse_is_the_shared_block_of_the_dense_inverse() {
+        let (j, r, block) = arrow();
+        let dense = DenseNormal::new(&j, &r).jtj.try_inverse().unwrap();
+        let shared = block.shared_inverse().unwrap();
+        let expected = dense.view((0, 0), (3, 3)).clone_owned();
+        assert!(
+            (&shared - &expected).norm() <= 1e-9 * expected.norm(),
+            "{shared} vs {expected}"
+        );
     }
 }

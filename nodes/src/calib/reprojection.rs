@@ -103,7 +103,7 @@ pub(crate) struct Pose {
     pub translation: Vector3<f64>,
     /// The left Jacobian of SO(3) at the rotation vector:
     /// R(r + e) = exp([J e]x) R(r) to first order.
-    left_jacobian: Matrix3<f64>,
+    pub left_jacobian: Matrix3<f64>,
 }
 
 impl Pose {

@@ -9,8 +9,9 @@ use super::camera_calibration::{
 use super::lm::{LeastSquares, levenberg_marquardt};
 use super::normal_equations::BlockNormal;
 use super::reprojection::{Pose, corner_residual};
+use super::uncertainty::{Spread, block3};
 use crate::camera::CameraModel;
-use nalgebra::{DVector, Isometry3};
+use nalgebra::{DVector, Isometry3, Matrix3};
 
 /// A calibrated stereo rig.
 #[derive(Debug, Clone)]
@@ -36,6 +37,73 @@ pub struct StereoCalibration {
     /// Whether the joint refinement reached the minimum (rather than its
     /// iteration limit).
     pub converged: bool,
+    /// The spread of the left camera's estimated intrinsics, then the
+    /// right's (each in `estimated`'s order), then the rig's rotation vector
+    /// (rad) and translation (mm); `None` when J^T J is singular at the
+    /// optimum.
+    pub spread: Option<Spread>,
+    /// Solver-order indices of each camera's estimated intrinsics.
+    pub estimated: Vec<usize>,
+}
+
+/// How well a stereo calibration pins the rig (left -> right).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RigSpread {
+    /// Covariance of the rotation's small-angle error about the right
+    /// camera's x, y, z axes (R' = exp([e]x) R), rad^2.
+    pub rotation_rad2: Matrix3<f64>,
+    /// Covariance of the translation, mm^2 (right camera frame).
+    pub translation_mm2: Matrix3<f64>,
+    /// Standard deviation of the baseline |t|, mm.
+    pub baseline_sd_mm: f64,
+}
+
+impl RigSpread {
+    /// Standard deviation of the rotation about each axis, deg.
+    pub fn rotation_sd_deg(&self) -> [f64; 3] {
+        std::array::from_fn(|i| self.rotation_rad2[(i, i)].max(0.0).sqrt().to_degrees())
+    }
+
+    /// Standard deviation of the translation along each axis, mm.
+    pub fn translation_sd_mm(&self) -> [f64; 3] {
+        std::array::from_fn(|i| self.translation_mm2[(i, i)].max(0.0).sqrt())
+    }
+}
+
+impl StereoCalibration {
+    /// Standard deviation of each intrinsic of camera `side` (0 left, 1
+    /// right) in solver order (fx, fy, cx, cy in px, then k1, k2, p1, p2,
+    /// k3), 0 for one held fixed and NaN without a spread.
+    pub fn intrinsics_sd(&self, side: usize) -> [f64; 9] {
+        let mut sd = [0.0; 9];
+        let covariance = self.spread.as_ref().and_then(Spread::covariance);
+        let offset = side * self.estimated.len();
+        for (k, &i) in self.estimated.iter().enumerate() {
+            sd[i] = covariance
+                .as_ref()
+                .map_or(f64::NAN, |c| c[(offset + k, offset + k)].max(0.0).sqrt());
+        }
+        sd
+    }
+
+    /// The rig's spread; `None` without one.
+    pub fn rig_spread(&self) -> Option<RigSpread> {
+        let covariance = self.spread.as_ref()?.covariance()?;
+        let o = 2 * self.estimated.len();
+        let vector = self.left_to_right.rotation.scaled_axis();
+        let rig = Pose::new(&[vector.x, vector.y, vector.z, 0.0, 0.0, 0.0]);
+        let rotation_vector = block3(&covariance, o);
+        let translation_mm2 = block3(&covariance, o + 3);
+        let t = self.left_to_right.translation.vector;
+        let along = t / t.norm().max(f64::MIN_POSITIVE);
+        Some(RigSpread {
+            rotation_rad2: rig.left_jacobian * rotation_vector * rig.left_jacobian.transpose(),
+            translation_mm2,
+            baseline_sd_mm: (along.transpose() * translation_mm2 * along)[(0, 0)]
+                .max(0.0)
+                .sqrt(),
+        })
+    }
 }
 
 /// The solver vector: the left camera's free intrinsics, the right's, the rig
@@ -233,6 +301,16 @@ pub fn calibrate_stereo(
     let poses: Vec<Isometry3<f64>> = (0..pairs.len())
         .map(|p| pose_from(problem.pose_vector_of(&report.x, p)))
         .collect();
+    let residuals = problem.residuals(&report.x);
+    let spread = problem
+        .normal_equations(&report.x, &residuals)
+        .shared_inverse()
+        .map(|unit_covariance| Spread {
+            unit_covariance,
+            cost: report.cost,
+            residuals: residuals.len(),
+            parameters: report.x.len(),
+        });
     let (mut sums, mut counts) = ([0.0f64; 2], [0usize; 2]);
     let mut pair_rms_px = Vec::with_capacity(pairs.len());
     for (p, (left_view, right_view)) in pairs.iter().enumerate() {
@@ -263,6 +341,8 @@ pub fn calibrate_stereo(
         mono: [left, right],
         iterations: report.iterations,
         converged: report.converged,
+        spread,
+        estimated: free,
     })
 }
 
@@ -359,5 +439,60 @@ mod tests {
         );
         let d = max_relative_difference(&x, &reference.x, 1e-3);
         assert!(d < 1e-4, "{d:e}");
+    }
+
+    #[test]
+    fn the_rigs_spread_matches_a_monte_carlo_of_the_corners_noise() {
+        use crate::calib::camera_calibration::tests::{assert_spread, mean_and_sd};
+        let rig = Rig::paper_rig();
+        let poses = true_poses();
+        let in_right: Vec<_> = poses.iter().map(|p| rig.left_to_right * p).collect();
+        let (lefts, rights) = (views_of(&rig.left, &poses), views_of(&rig.right, &in_right));
+        let free = [true, true, true, true, false];
+        let draws: Vec<StereoCalibration> = (0..200)
+            .map(|seed| {
+                let pairs: Vec<_> = with_noise(lefts.clone(), 0.2, 2 * seed)
+                    .into_iter()
+                    .zip(with_noise(rights.clone(), 0.2, 2 * seed + 1))
+                    .collect();
+                calibrate_stereo(&pairs, [(800, 600); 2], free).unwrap()
+            })
+            .collect();
+        let mean = |f: &dyn Fn(&StereoCalibration) -> f64| {
+            draws.iter().map(f).sum::<f64>() / draws.len() as f64
+        };
+        let spread = |f: &dyn Fn(&StereoCalibration) -> f64| {
+            mean_and_sd(&draws.iter().map(f).collect::<Vec<f64>>()).1
+        };
+        let predicted = |f: &dyn Fn(&RigSpread) -> f64| mean(&|s| f(&s.rig_spread().unwrap()));
+        assert_spread(
+            "baseline",
+            predicted(&|r| r.baseline_sd_mm),
+            spread(&|s| s.left_to_right.translation.vector.norm()),
+        );
+        for axis in 0..3 {
+            assert_spread(
+                &format!("translation {axis}"),
+                predicted(&|r| r.translation_sd_mm()[axis]),
+                spread(&|s| s.left_to_right.translation.vector[axis]),
+            );
+            // The small-angle error about each axis, against the truth.
+            assert_spread(
+                &format!("rotation {axis}"),
+                predicted(&|r| r.rotation_sd_deg()[axis]),
+                spread(&|s| {
+                    let e = (s.left_to_right.rotation * rig.left_to_right.rotation.inverse())
+                        .scaled_axis();
+                    e[axis].to_degrees()
+                }),
+            );
+        }
+        for side in 0..2 {
+            assert_spread(
+                &format!("fx of camera {side}"),
+                mean(&|s| s.intrinsics_sd(side)[0]),
+                spread(&|s| if side == 0 { s.left.fx } else { s.right.fx }),
+            );
+        }
     }
 }

@@ -1,6 +1,6 @@
 //! `calib.calibrate_camera`: one camera from the boards of its photos.
 
-use super::SolverParams;
+use super::{SolverParams, report_intrinsics_sd};
 use crate::calib::tables::boards_from_table;
 use crate::calib::{BoardView, calibrate_camera, repeated_poses, usual_size};
 use fusegraph_engine::typed::prelude::*;
@@ -9,7 +9,8 @@ use fusegraph_engine::value::{Camera, Table};
 /// Zhang calibration refined by Levenberg-Marquardt -> Camera
 #[derive(Op)]
 // 3: analytic Jacobians, stopped on the exact minimum.
-#[op(name = "calib.calibrate_camera", version = 4)]
+// 5: standard deviations of every intrinsic in the metrics.
+#[op(name = "calib.calibrate_camera", version = 5)]
 pub struct CalibrateCamera {
     #[param(flatten)]
     pub solver: SolverParams,
@@ -78,6 +79,7 @@ impl RunOp for CalibrateCamera {
                 c.iterations
             ));
         }
+        report_intrinsics_sd(ctx, "", c.spread.as_ref(), c.intrinsics_sd(), &c.estimated);
         for (id, e) in ids.iter().zip(&c.view_rms_px) {
             ctx.metric(&format!("view_{id}_rms_px"), *e);
         }

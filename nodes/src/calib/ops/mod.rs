@@ -12,7 +12,7 @@ pub use rectify::{Rectify, RectifyInputs, RectifyOutputs};
 pub use remap::{Remap, RemapInputs, RemapOutputs, RemapSide};
 pub use stereo_calibrate::{StereoCalibrate, StereoCalibrateInputs, StereoCalibrateOutputs};
 
-use super::DISTORTION_NAMES;
+use super::{DISTORTION_NAMES, Spread};
 use fusegraph_engine::OpError;
 use fusegraph_engine::typed::prelude::*;
 
@@ -88,5 +88,36 @@ impl SolverParams {
              a view is probably mispaired or its board mis-detected (worst: {})",
             listed.join(", ")
         )))
+    }
+}
+
+/// The metric names of the intrinsics' standard deviations, in solver order.
+const INTRINSICS_SD_NAMES: [&str; 9] = [
+    "fx_sd_px", "fy_sd_px", "cx_sd_px", "cy_sd_px", "k1_sd", "k2_sd", "p1_sd", "p2_sd", "k3_sd",
+];
+
+/// Reports the estimated intrinsics' standard deviations `sd` (solver
+/// order) as metrics named with `prefix` (`fx_sd_px`, ..., `k1_sd`; none for
+/// a coefficient held fixed), and the residuals' own standard deviation;
+/// without a spread, a note saying why.
+pub(crate) fn report_intrinsics_sd(
+    ctx: &mut RunCtx,
+    prefix: &str,
+    spread: Option<&Spread>,
+    sd: [f64; 9],
+    estimated: &[usize],
+) {
+    let Some(spread) = spread else {
+        ctx.note(format!(
+            "{prefix}no standard deviations: the views leave a parameter undetermined (J^T J is \
+             singular at the optimum)"
+        ));
+        return;
+    };
+    for &i in estimated {
+        ctx.metric(&format!("{prefix}{}", INTRINSICS_SD_NAMES[i]), sd[i]);
+    }
+    if let Some(v) = super::residual_variance(spread.cost, spread.residuals, spread.parameters) {
+        ctx.metric(&format!("{prefix}residual_sd_px"), v.sqrt());
     }
 }

@@ -1,6 +1,6 @@
 //! `calib.stereo_calibrate`: both cameras and the rig from paired boards.
 
-use super::SolverParams;
+use super::{SolverParams, report_intrinsics_sd};
 use crate::calib::conversions::rig_value;
 use crate::calib::tables::{boards_from_table, photos_from_table};
 use crate::calib::{Side, calibrate_stereo, pair_views};
@@ -10,7 +10,8 @@ use fusegraph_engine::value::{StereoRig, Table};
 /// Both cameras and the rig extrinsics, refined jointly -> StereoRig
 #[derive(Op)]
 // 3: analytic Jacobians, stopped on the exact minimum.
-#[op(name = "calib.stereo_calibrate", version = 4)]
+// 5: standard deviations of every parameter, and each pair's RMS, in the metrics.
+#[op(name = "calib.stereo_calibrate", version = 5)]
 pub struct StereoCalibrate {
     #[param(flatten)]
     pub solver: SolverParams,
@@ -77,6 +78,28 @@ impl RunOp for StereoCalibrate {
         ctx.metric("rms_right_px", s.rms_left_right_px[1]);
         ctx.metric("baseline_mm", s.left_to_right.translation.vector.norm());
         ctx.metric("verging_deg", s.left_to_right.rotation.angle().to_degrees());
+        for (side, prefix) in ["left_", "right_"].into_iter().enumerate() {
+            report_intrinsics_sd(
+                ctx,
+                prefix,
+                s.spread.as_ref(),
+                s.intrinsics_sd(side),
+                &s.estimated,
+            );
+        }
+        if let Some(rig) = s.rig_spread() {
+            ctx.metric("baseline_sd_mm", rig.baseline_sd_mm);
+            for (axis, (r, t)) in ["x", "y", "z"]
+                .iter()
+                .zip(rig.rotation_sd_deg().iter().zip(rig.translation_sd_mm()))
+            {
+                ctx.metric(&format!("rotation_{axis}_sd_deg"), *r);
+                ctx.metric(&format!("translation_{axis}_sd_mm"), t);
+            }
+        }
+        for (id, e) in pairing.views.iter().zip(&s.pair_rms_px) {
+            ctx.metric(&format!("pair_{id}_rms_px"), *e);
+        }
         self.solver
             .check_rms("stereo", s.rms_px, &pairing.views, &s.pair_rms_px)?;
         Ok(StereoCalibrateOutputs { rig: rig_value(&s) })

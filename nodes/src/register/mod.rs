@@ -10,6 +10,7 @@ mod match_markers;
 mod multiview;
 pub mod ops;
 mod procrustes;
+mod target_error;
 mod targets;
 
 pub use icp::{
@@ -19,6 +20,10 @@ pub use marker_merge::{DroppedSighting, MergeParams, MergedMarker, ViewMarkers, 
 pub use match_markers::{MarkerMatch, match_markers};
 pub use multiview::{MarkerAnchoring, Multiview, View, poses_from_markers, register_views};
 pub use procrustes::{Similarity, umeyama};
+pub use target_error::{
+    FiducialConfiguration, MarkerPrediction, error_bound_mm, expected_fre, fle_from_fre,
+    predict_marker_tre,
+};
 pub use targets::map_targets;
 
 use fusegraph_engine::Registry;

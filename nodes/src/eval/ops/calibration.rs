@@ -7,7 +7,8 @@ use fusegraph_engine::value::{PathValue, Rectification, StereoRig};
 
 /// A calibrated rig (and rectification) against the phantom's true cameras
 #[derive(Op)]
-#[op(name = "eval.calibration", version = 1)]
+// 2: signed errors (fx .. cy in px, the baseline, the rotation about each axis).
+#[op(name = "eval.calibration", version = 2)]
 pub struct EvalCalibration;
 
 #[derive(Inputs)]
@@ -47,14 +48,15 @@ impl RunOp for EvalCalibration {
             rect.as_ref(),
             &truth,
         );
-        for (name, v) in [
+        for (name, (rel, px)) in [
             "left_fx", "left_fy", "left_cx", "left_cy", "right_fx", "right_fy", "right_cx",
             "right_cy",
         ]
         .iter()
-        .zip(e.intrinsic_rel)
+        .zip(e.intrinsic_rel.iter().zip(e.intrinsic_error_px))
         {
-            ctx.metric(&format!("{name}_rel_error"), v);
+            ctx.metric(&format!("{name}_rel_error"), *rel);
+            ctx.metric(&format!("{name}_error_px"), px);
         }
         ctx.metric(
             "focal_rel_error_max",
@@ -73,7 +75,11 @@ impl RunOp for EvalCalibration {
         ctx.metric("left_distortion_max_px", e.distortion_max_px[0]);
         ctx.metric("right_distortion_max_px", e.distortion_max_px[1]);
         ctx.metric("baseline_error_mm", e.baseline_error_mm);
+        ctx.metric("baseline_signed_error_mm", e.baseline_signed_error_mm);
         ctx.metric("rotation_error_deg", e.rotation_error_deg);
+        for (axis, v) in ["x", "y", "z"].iter().zip(e.rotation_error_axes_deg) {
+            ctx.metric(&format!("rotation_{axis}_error_deg"), v);
+        }
         let epipolar = e.epipolar_rms_px.unwrap_or(f64::NAN);
         ctx.metric("epipolar_rms_px", epipolar);
         Ok(EvalCalibrationOutputs {

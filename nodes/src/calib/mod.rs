@@ -4,6 +4,7 @@
 
 mod camera_calibration;
 mod conversions;
+mod cross_validation;
 mod detect;
 mod homography;
 mod lm;
@@ -22,6 +23,7 @@ pub use camera_calibration::{
     BoardView, CameraCalibration, DISTORTION_NAMES, board_corner_mm, calibrate_camera,
     rotation_error_deg,
 };
+pub use cross_validation::{CrossValidation, cross_validate};
 pub use detect::{Refusal, find_chessboard};
 pub use homography::homography;
 pub use lm::{LeastSquares, LmReport, levenberg_marquardt};
@@ -45,6 +47,7 @@ pub(crate) use conversions::{rectification_of, rig_isometry};
 pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.add::<ops::FindChessboard>()?;
     registry.add::<ops::CalibrateCamera>()?;
+    registry.add::<ops::CrossValidate>()?;
     registry.add::<ops::StereoCalibrate>()?;
     registry.add::<ops::Rectify>()?;
     registry.add::<ops::Remap>()?;

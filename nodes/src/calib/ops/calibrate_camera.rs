@@ -28,6 +28,58 @@ pub struct CalibrateCameraOutputs {
     pub camera: Camera,
 }
 
+/// One camera's boards, ready to calibrate.
+pub(crate) struct DistinctViews {
+    /// The views' numbers.
+    pub ids: Vec<u32>,
+    /// Their boards, in the same order.
+    pub views: Vec<BoardView>,
+    /// The photos' width and height, px.
+    pub size: (usize, usize),
+}
+
+/// One camera's boards from a corners table: views of another photo size
+/// than most and repeated board poses left out, each with a note. Fewer
+/// than 3 poses left by repeats is an error naming them.
+pub(crate) fn distinct_views(corners: &Table, ctx: &mut RunCtx) -> Result<DistinctViews, OpError> {
+    let mut boards = boards_from_table(corners)?;
+    let sizes = boards.iter().map(|(v, b)| (*v, b.1)).collect();
+    let ((w, h), odd) = usual_size(&sizes);
+    for v in odd {
+        let (ow, oh) = sizes[&v];
+        ctx.note(format!(
+            "view {v}: the photo is {ow} x {oh} px, the others {w} x {h}: left out"
+        ));
+        boards.remove(&v);
+    }
+    let mut ids: Vec<u32> = boards.keys().copied().collect();
+    let mut views: Vec<BoardView> = boards.into_values().map(|b| b.0).collect();
+    let poses: Vec<Vec<&BoardView>> = views.iter().map(|v| vec![v]).collect();
+    let repeats = repeated_poses(&poses);
+    for (i, first, shift) in &repeats {
+        ctx.note(format!(
+            "view {}: the same board pose as view {} (corners within {shift:.2} px): a repeated photo, left out",
+            ids[*i], ids[*first]
+        ));
+    }
+    for (i, _, _) in repeats.iter().rev() {
+        ids.remove(*i);
+        views.remove(*i);
+    }
+    if views.len() < 3 && !repeats.is_empty() {
+        return Err(OpError::invalid(format!(
+            "{} distinct board poses ({} photos repeated others); calibration needs at least 3",
+            views.len(),
+            repeats.len()
+        )));
+    }
+    Ok(DistinctViews {
+        ids,
+        views,
+        size: (w, h),
+    })
+}
+
 impl RunOp for CalibrateCamera {
     type Inputs = CalibrateCameraInputs;
     type Outputs = CalibrateCameraOutputs;
@@ -37,37 +89,11 @@ impl RunOp for CalibrateCamera {
     }
 
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
-        let mut boards = boards_from_table(&inputs.corners)?;
-        let sizes = boards.iter().map(|(v, b)| (*v, b.1)).collect();
-        let ((w, h), odd) = usual_size(&sizes);
-        for v in odd {
-            let (ow, oh) = sizes[&v];
-            ctx.note(format!(
-                "view {v}: the photo is {ow} x {oh} px, the others {w} x {h}: left out"
-            ));
-            boards.remove(&v);
-        }
-        let mut ids: Vec<u32> = boards.keys().copied().collect();
-        let mut views: Vec<BoardView> = boards.into_values().map(|b| b.0).collect();
-        let poses: Vec<Vec<&BoardView>> = views.iter().map(|v| vec![v]).collect();
-        let repeats = repeated_poses(&poses);
-        for (i, first, shift) in &repeats {
-            ctx.note(format!(
-                "view {}: the same board pose as view {} (corners within {shift:.2} px): a repeated photo, left out",
-                ids[*i], ids[*first]
-            ));
-        }
-        for (i, _, _) in repeats.iter().rev() {
-            ids.remove(*i);
-            views.remove(*i);
-        }
-        if views.len() < 3 && !repeats.is_empty() {
-            return Err(OpError::invalid(format!(
-                "{} distinct board poses ({} photos repeated others); calibration needs at least 3",
-                views.len(),
-                repeats.len()
-            )));
-        }
+        let DistinctViews {
+            ids,
+            views,
+            size: (w, h),
+        } = distinct_views(&inputs.corners, ctx)?;
         let c = calibrate_camera(&views, w, h, self.solver.distortion_mask()?)
             .map_err(OpError::invalid)?;
         ctx.metric("rms_px", c.rms_px);

@@ -1,12 +1,14 @@
 //! The `calib.*` ops: one file per op, each its declaration and thin adapter.
 
 mod calibrate_camera;
+mod cross_validate;
 mod find_chessboard;
 mod rectify;
 mod remap;
 mod stereo_calibrate;
 
 pub use calibrate_camera::{CalibrateCamera, CalibrateCameraInputs, CalibrateCameraOutputs};
+pub use cross_validate::{CrossValidate, CrossValidateInputs, CrossValidateOutputs};
 pub use find_chessboard::{FindChessboard, FindChessboardInputs, FindChessboardOutputs};
 pub use rectify::{Rectify, RectifyInputs, RectifyOutputs};
 pub use remap::{Remap, RemapInputs, RemapOutputs, RemapSide};

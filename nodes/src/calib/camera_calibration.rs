@@ -363,16 +363,7 @@ pub fn calibrate_camera(
         })
         .collect();
     let corners: usize = views.iter().map(|v| v.board_mm.len()).sum();
-    let residuals = problem.residuals(&report.x);
-    let spread = problem
-        .normal_equations(&report.x, &residuals)
-        .shared_inverse()
-        .map(|unit_covariance| Spread {
-            unit_covariance,
-            cost: report.cost,
-            residuals: residuals.len(),
-            parameters: report.x.len(),
-        });
+    let spread = Spread::at_optimum(&problem, &report);
     Ok(CameraCalibration {
         camera,
         poses,

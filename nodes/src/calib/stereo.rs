@@ -301,16 +301,7 @@ pub fn calibrate_stereo(
     let poses: Vec<Isometry3<f64>> = (0..pairs.len())
         .map(|p| pose_from(problem.pose_vector_of(&report.x, p)))
         .collect();
-    let residuals = problem.residuals(&report.x);
-    let spread = problem
-        .normal_equations(&report.x, &residuals)
-        .shared_inverse()
-        .map(|unit_covariance| Spread {
-            unit_covariance,
-            cost: report.cost,
-            residuals: residuals.len(),
-            parameters: report.x.len(),
-        });
+    let spread = Spread::at_optimum(&problem, &report);
     let (mut sums, mut counts) = ([0.0f64; 2], [0usize; 2]);
     let mut pair_rms_px = Vec::with_capacity(pairs.len());
     for (p, (left_view, right_view)) in pairs.iter().enumerate() {

@@ -10,6 +10,8 @@
 //! being two residuals, so its standard deviations were about sqrt(2) too
 //! large.
 
+use super::lm::{LeastSquares, LmReport};
+use super::normal_equations::BlockNormal;
 use nalgebra::{DMatrix, Matrix3};
 
 /// The residuals' variance (px^2) from their sum of squares `cost` over
@@ -37,6 +39,25 @@ pub struct Spread {
 }
 
 impl Spread {
+    /// The spread of `problem`'s shared parameters at its optimum `report`
+    /// (the normal equations taken again there); `None` when J^T J is
+    /// singular at it.
+    pub(crate) fn at_optimum<P: LeastSquares<Normal = BlockNormal>>(
+        problem: &P,
+        report: &LmReport,
+    ) -> Option<Spread> {
+        let residuals = problem.residuals(&report.x);
+        let unit_covariance = problem
+            .normal_equations(&report.x, &residuals)
+            .shared_inverse()?;
+        Some(Spread {
+            unit_covariance,
+            cost: report.cost,
+            residuals: residuals.len(),
+            parameters: report.x.len(),
+        })
+    }
+
     /// The shared parameters' covariance; `None` without spare residuals.
     pub fn covariance(&self) -> Option<DMatrix<f64>> {
         residual_variance(self.cost, self.residuals, self.parameters)

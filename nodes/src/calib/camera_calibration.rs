@@ -6,7 +6,7 @@ use super::homography::homography;
 use super::lm::{LeastSquares, levenberg_marquardt};
 use super::normal_equations::BlockNormal;
 use super::reprojection::{Pose, corner_residual};
-use super::uncertainty::Spread;
+use super::uncertainty::{Spread, intrinsics_sd};
 use super::zhang::{intrinsics_from_homographies, pose_from_homography};
 use crate::camera::CameraModel;
 use nalgebra::{
@@ -69,14 +69,7 @@ impl CameraCalibration {
     /// in px, then k1, k2, p1, p2, k3), 0 for one held fixed and NaN without
     /// a spread.
     pub fn intrinsics_sd(&self) -> [f64; 9] {
-        let mut sd = [0.0; 9];
-        let covariance = self.spread.as_ref().and_then(Spread::covariance);
-        for (k, &i) in self.estimated.iter().enumerate() {
-            sd[i] = covariance
-                .as_ref()
-                .map_or(f64::NAN, |c| c[(k, k)].max(0.0).sqrt());
-        }
-        sd
+        intrinsics_sd(self.spread.as_ref(), &self.estimated, 0)
     }
 }
 

@@ -31,7 +31,7 @@ pub use normal_equations::{BlockNormal, DampedSystem, DenseNormal};
 pub use rectify::{StereoRectification, rectify, remap};
 pub use stereo::{RigSpread, StereoCalibration, calibrate_stereo};
 pub use subpixel::{refine_corner, window_for_square};
-pub use uncertainty::{Spread, block3, residual_variance, standard_deviations};
+pub use uncertainty::{Spread, block3, intrinsics_sd, residual_variance};
 pub use views::{
     IMAGE_EXTENSIONS, NumberedPhotos, Pairing, PhotoRecord, SAME_POSE_PX, Side,
     max_corner_shift_px, numbered_photos, pair_views, repeated_poses, usual_size, view_number,

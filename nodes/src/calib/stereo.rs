@@ -9,7 +9,7 @@ use super::camera_calibration::{
 use super::lm::{LeastSquares, levenberg_marquardt};
 use super::normal_equations::BlockNormal;
 use super::reprojection::{Pose, corner_residual};
-use super::uncertainty::{Spread, block3};
+use super::uncertainty::{Spread, block3, intrinsics_sd};
 use crate::camera::CameraModel;
 use nalgebra::{DVector, Isometry3, Matrix3};
 
@@ -75,15 +75,8 @@ impl StereoCalibration {
     /// right) in solver order (fx, fy, cx, cy in px, then k1, k2, p1, p2,
     /// k3), 0 for one held fixed and NaN without a spread.
     pub fn intrinsics_sd(&self, side: usize) -> [f64; 9] {
-        let mut sd = [0.0; 9];
-        let covariance = self.spread.as_ref().and_then(Spread::covariance);
         let offset = side * self.estimated.len();
-        for (k, &i) in self.estimated.iter().enumerate() {
-            sd[i] = covariance
-                .as_ref()
-                .map_or(f64::NAN, |c| c[(offset + k, offset + k)].max(0.0).sqrt());
-        }
-        sd
+        intrinsics_sd(self.spread.as_ref(), &self.estimated, offset)
     }
 
     /// The rig's spread; `None` without one.

@@ -63,24 +63,22 @@ impl Spread {
         residual_variance(self.cost, self.residuals, self.parameters)
             .map(|v| &self.unit_covariance * v)
     }
-
-    /// The shared parameters' standard deviations; NaN without spare
-    /// residuals.
-    pub fn standard_deviations(&self) -> Vec<f64> {
-        match self.covariance() {
-            Some(c) => standard_deviations(&c),
-            None => vec![f64::NAN; self.unit_covariance.nrows()],
-        }
-    }
 }
 
-/// The square roots of a covariance's diagonal.
-pub fn standard_deviations(covariance: &DMatrix<f64>) -> Vec<f64> {
-    covariance
-        .diagonal()
-        .iter()
-        .map(|v| v.max(0.0).sqrt())
-        .collect()
+/// Standard deviation of each intrinsic in solver order (fx, fy, cx, cy in
+/// px, then k1, k2, p1, p2, k3): `estimated` (solver-order indices) are the
+/// spread's parameters from `offset` on; 0 for one held fixed, NaN without
+/// a spread or spare residuals.
+pub fn intrinsics_sd(spread: Option<&Spread>, estimated: &[usize], offset: usize) -> [f64; 9] {
+    let mut sd = [0.0; 9];
+    let covariance = spread.and_then(Spread::covariance);
+    for (k, &i) in estimated.iter().enumerate() {
+        let j = offset + k;
+        sd[i] = covariance
+            .as_ref()
+            .map_or(f64::NAN, |c| c[(j, j)].max(0.0).sqrt());
+    }
+    sd
 }
 
 /// The 3 x 3 block of `covariance` at `offset`.

@@ -12,6 +12,7 @@ mod normal_equations;
 pub mod ops;
 mod rectify;
 mod reprojection;
+mod rig_parameters;
 mod stereo;
 mod subpixel;
 mod tables;
@@ -29,6 +30,10 @@ pub use homography::homography;
 pub use lm::{LeastSquares, LmReport, levenberg_marquardt};
 pub use normal_equations::{BlockNormal, DampedSystem, DenseNormal};
 pub use rectify::{StereoRectification, rectify, remap};
+pub use rig_parameters::{
+    INTRINSIC_NAMES, POSE_NAMES, ParameterCovariance, RigModel, parameter_names, perturbed_rigs,
+    triangulation_shifts,
+};
 pub use stereo::{RigSpread, StereoCalibration, calibrate_stereo};
 pub use subpixel::{refine_corner, window_for_square};
 pub use uncertainty::{Spread, block3, intrinsics_sd, residual_variance};

@@ -42,7 +42,7 @@ pub enum Kernel {
 }
 
 impl Kernel {
-    fn weight(self, r: f64) -> f64 {
+    pub(crate) fn weight(self, r: f64) -> f64 {
         let r = r.abs();
         match self {
             Kernel::None => 1.0,
@@ -81,6 +81,59 @@ pub struct IcpParams {
     pub tolerance: f64,
     /// Coarse-to-fine voxel sizes for the source, mm (empty = full resolution).
     pub voxel_sizes_mm: Vec<f64>,
+}
+
+impl IcpParams {
+    /// The source voxel sizes of the scales, coarse to fine (0 = full).
+    pub(crate) fn scales(&self) -> Vec<f64> {
+        if self.voxel_sizes_mm.is_empty() {
+            vec![0.0]
+        } else {
+            self.voxel_sizes_mm.clone()
+        }
+    }
+
+    /// The source at one scale's voxel size, and that scale's maximum
+    /// pair distance (mm).
+    pub(crate) fn scale(&self, source: &[Point3<f64>], voxel_mm: f64) -> (Vec<Point3<f64>>, f64) {
+        let points = if voxel_mm > 0.0 {
+            voxel_downsample(source, voxel_mm)
+        } else {
+            source.to_vec()
+        };
+        (points, self.max_distance_mm.max(2.0 * voxel_mm))
+    }
+}
+
+/// Each moved source point's nearest target point within `max_d` (mm) as
+/// (source index, target index, distance mm), the closest `trim_ratio` of
+/// them kept, and the fraction of source points that had one (fitness).
+pub(crate) fn correspondences(
+    moved: &[Point3<f64>],
+    tree: &Nearest,
+    max_d: f64,
+    trim_ratio: f64,
+) -> Result<(Vec<(usize, usize, f64)>, f64), String> {
+    let mut pairs: Vec<(usize, usize, f64)> = moved
+        .par_iter()
+        .enumerate()
+        .filter_map(|(i, m)| {
+            let (j, d2) = tree.nearest(m);
+            (d2 <= max_d * max_d).then(|| (i, j, d2.sqrt()))
+        })
+        .collect();
+    let fitness = pairs.len() as f64 / moved.len().max(1) as f64;
+    if pairs.len() < 6 {
+        return Err(format!(
+            "only {} pairs within {max_d} mm: the start is too far off",
+            pairs.len()
+        ));
+    }
+    if trim_ratio < 1.0 {
+        pairs.sort_by(|a, b| a.2.total_cmp(&b.2));
+        pairs.truncate(((pairs.len() as f64 * trim_ratio).ceil() as usize).max(6));
+    }
+    Ok((pairs, fitness))
 }
 
 /// One iteration's figures.
@@ -135,7 +188,7 @@ pub struct Anchors {
 impl Anchors {
     /// The directions landmark `k`'s residual is fitted along: the three
     /// axes, or the two across its normal.
-    fn directions(&self, k: usize) -> Vec<Vector3<f64>> {
+    pub(crate) fn directions(&self, k: usize) -> Vec<Vector3<f64>> {
         match self.normals.as_ref().and_then(|n| n.get(k)) {
             Some(n) => {
                 let a = if n.x.abs() < 0.9 {
@@ -152,7 +205,7 @@ impl Anchors {
 
     /// Each landmark pair's weight when `surface_weight` is the surface
     /// pairs' total.
-    fn each(&self, surface_weight: f64) -> f64 {
+    pub(crate) fn each(&self, surface_weight: f64) -> f64 {
         self.weight * surface_weight / self.source.len().max(1) as f64
     }
 }
@@ -246,42 +299,14 @@ pub fn icp_anchored(
     {
         return Err("point-to-plane ICP needs a normal for every target point".into());
     }
-    let scales: Vec<f64> = if p.voxel_sizes_mm.is_empty() {
-        vec![0.0]
-    } else {
-        p.voxel_sizes_mm.clone()
-    };
     let mut transform = *init;
     let mut trace = Vec::new();
-    for &voxel in &scales {
-        let src = if voxel > 0.0 {
-            voxel_downsample(source, voxel)
-        } else {
-            source.to_vec()
-        };
-        let max_d = p.max_distance_mm.max(2.0 * voxel);
+    for voxel in p.scales() {
+        let (src, max_d) = p.scale(source, voxel);
         let mut previous: Option<(f64, f64)> = None;
         for _ in 0..p.max_iterations {
             let moved: Vec<Point3<f64>> = src.par_iter().map(|s| transform * s).collect();
-            let mut pairs: Vec<(usize, usize, f64)> = moved
-                .par_iter()
-                .enumerate()
-                .filter_map(|(i, m)| {
-                    let (j, d2) = tree.nearest(m);
-                    (d2 <= max_d * max_d).then(|| (i, j, d2.sqrt()))
-                })
-                .collect();
-            let fitness = pairs.len() as f64 / src.len().max(1) as f64;
-            if pairs.len() < 6 {
-                return Err(format!(
-                    "only {} pairs within {max_d} mm: the start is too far off",
-                    pairs.len()
-                ));
-            }
-            if p.trim_ratio < 1.0 {
-                pairs.sort_by(|a, b| a.2.total_cmp(&b.2));
-                pairs.truncate(((pairs.len() as f64 * p.trim_ratio).ceil() as usize).max(6));
-            }
+            let (pairs, fitness) = correspondences(&moved, tree, max_d, p.trim_ratio)?;
             let rmse = (pairs.iter().map(|q| q.2 * q.2).sum::<f64>() / pairs.len() as f64).sqrt();
             trace.push(IcpStep {
                 voxel_mm: voxel,

@@ -9,6 +9,7 @@ mod marker_merge;
 mod match_markers;
 mod multiview;
 pub mod ops;
+mod pose_spread;
 mod procrustes;
 mod target_error;
 mod targets;
@@ -19,6 +20,7 @@ pub use icp::{
 pub use marker_merge::{DroppedSighting, MergeParams, MergedMarker, ViewMarkers, merge_markers};
 pub use match_markers::{MarkerMatch, match_markers};
 pub use multiview::{MarkerAnchoring, Multiview, View, poses_from_markers, register_views};
+pub use pose_spread::{PoseSpread, mapped_point_covariance, pose_spread};
 pub use procrustes::{Similarity, umeyama};
 pub use target_error::{
     FiducialConfiguration, MarkerPrediction, error_bound_mm, expected_fre, fle_from_fre,

@@ -3,7 +3,7 @@
 use super::{SolverParams, report_intrinsics_sd};
 use crate::calib::conversions::rig_value;
 use crate::calib::tables::{boards_from_table, photos_from_table};
-use crate::calib::{Side, calibrate_stereo, pair_views};
+use crate::calib::{ParameterCovariance, Side, calibrate_stereo, pair_views, parameter_names};
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{StereoRig, Table};
 
@@ -11,7 +11,8 @@ use fusegraph_engine::value::{StereoRig, Table};
 #[derive(Op)]
 // 3: analytic Jacobians, stopped on the exact minimum.
 // 5: standard deviations of every parameter, and each pair's RMS, in the metrics.
-#[op(name = "calib.stereo_calibrate", version = 5)]
+// 6: the shared parameters' covariance as an output.
+#[op(name = "calib.stereo_calibrate", version = 6)]
 pub struct StereoCalibrate {
     #[param(flatten)]
     pub solver: SolverParams,
@@ -33,6 +34,12 @@ pub struct StereoCalibrateInputs {
 pub struct StereoCalibrateOutputs {
     /// Cameras and R, T (left -> right, mm)
     pub rig: StereoRig,
+    /// The covariance of the estimated parameters (each camera's free
+    /// intrinsics, `left_fx_px` ..., then the rig's `rotation_vector_*_rad`
+    /// and `translation_*_mm`): one column and one row per parameter, in
+    /// their units squared; empty (no rows) where the views leave one
+    /// undetermined
+    pub covariance: Table,
 }
 
 /// One side's boards, and its photos' records when the views table is given.
@@ -102,6 +109,14 @@ impl RunOp for StereoCalibrate {
         }
         self.solver
             .check_rms("stereo", s.rms_px, &pairing.views, &s.pair_rms_px)?;
-        Ok(StereoCalibrateOutputs { rig: rig_value(&s) })
+        let names = parameter_names(&s.estimated);
+        let covariance = match s.spread.as_ref().and_then(|spread| spread.covariance()) {
+            Some(matrix) => ParameterCovariance { names, matrix }.to_table(),
+            None => Table::new(names, Vec::new()).map_err(|e| OpError::invalid(e.0))?,
+        };
+        Ok(StereoCalibrateOutputs {
+            rig: rig_value(&s),
+            covariance,
+        })
     }
 }

@@ -1,0 +1,483 @@
+//! How well an ICP result pins the pose: the covariance of a small turn w
+//! (rad) and shift t (mm) applied after it in the target frame
+//! (`p -> p + w x p + t`), from the final normal equations.
+//!
+//! Two sources of error are counted:
+//!
+//! - **The surfaces' own noise**, from the final residuals. Reconstructed
+//!   surfaces are not independently noisy point by point: a stereo surface's
+//!   errors are smooth over its matching windows and its smoothing, so the
+//!   textbook sigma^2 (J^T J)^-1, which counts every pair as independent, is
+//!   too small by about the number of pairs per correlated patch. The
+//!   cluster-robust ("sandwich") estimate H^-1 (sum_b g_b g_b^T) H^-1 (Liang &
+//!   Zeger 1986), with g_b the sum of weighted residual times Jacobian over
+//!   a block of `block_mm` of the target frame, needs no model of the
+//!   correlation, only blocks wider than it; each landmark is a block of its
+//!   own.
+//! - **A spread of the source's points that the residuals cannot show**: a
+//!   shift field common to the whole source (a stereo rig's calibration
+//!   error moves every triangulated point along a smooth field, largely a
+//!   rigid motion ICP follows without a trace in its residuals). Given the
+//!   field's shift at each point for each of a set of directions (one
+//!   standard deviation each, their outer products summing to the field's
+//!   covariance), each direction's response of the pose is -H^-1 sum_i w_i
+//!   J_i (e_i . R dX_i), and their outer products add.
+
+use super::icp::{Anchors, IcpMethod, IcpParams, correspondences};
+use crate::cloud::Nearest;
+use nalgebra::{Isometry3, Matrix6, Point3, Vector3, Vector6};
+use rayon::prelude::*;
+use std::collections::HashMap;
+
+/// What a term of the final fit is a residual of.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Origin {
+    /// Source point `i` paired with the target surface.
+    Surface(usize),
+    /// Landmark `k`.
+    Landmark(usize),
+}
+
+/// One row of the final normal equations: its residual `e . (m - q)` (mm)
+/// along the direction `e`, its Jacobian `(m x e, e)` and weight, and where
+/// its block is taken.
+#[derive(Debug, Clone, Copy)]
+struct Term {
+    origin: Origin,
+    moved: Point3<f64>,
+    /// The target point it pairs with: blocks are taken there, not at the
+    /// moved source point, whose own noise would sort it into the block on
+    /// its side of a boundary and bias the blocks' sums.
+    anchor: Point3<f64>,
+    direction: Vector3<f64>,
+    residual: f64,
+    weight: f64,
+}
+
+impl Term {
+    fn row(&self) -> Vector6<f64> {
+        let c = self.moved.coords.cross(&self.direction);
+        let e = self.direction;
+        Vector6::new(c.x, c.y, c.z, e.x, e.y, e.z)
+    }
+}
+
+/// The pose's covariance and its parts, rad and mm (rotation first).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PoseSpread {
+    /// Everything counted: `noise + shift`.
+    pub covariance: Matrix6<f64>,
+    /// From the residuals, block by block.
+    pub noise: Matrix6<f64>,
+    /// From the residuals as if every term were independent (each its own
+    /// block): what the textbook formula gives, for comparison.
+    pub independent: Matrix6<f64>,
+    /// From the given shift field (zero without one).
+    pub shift: Matrix6<f64>,
+    /// Blocks with residuals in them.
+    pub blocks: usize,
+    /// Terms of the final fit.
+    pub terms: usize,
+}
+
+/// Terms per shift evaluation at most: the shift field is smooth, so a
+/// regular subset of the surface terms (reweighted to the same total) gives
+/// its response to well under a per cent.
+const SHIFT_TERMS: usize = 8192;
+
+/// The spread of `transform`, an ICP result of `source` onto `target` with
+/// the settings and landmarks it was fitted with (see
+/// [`icp_anchored`](super::icp_anchored)): the final scale's pairs are taken
+/// again at it. `shifts`, given, tells for a source-frame point (a source
+/// point or a source landmark) its shift (source frame, mm) along each of
+/// the field's directions, `None` where it has none. `None` when the terms
+/// do not pin the pose.
+#[allow(clippy::too_many_arguments)]
+pub fn pose_spread(
+    source: &[Point3<f64>],
+    target: &[Point3<f64>],
+    target_normals: Option<&[Vector3<f64>]>,
+    tree: &Nearest,
+    transform: &Isometry3<f64>,
+    p: &IcpParams,
+    anchors: Option<&Anchors>,
+    block_mm: f64,
+    shifts: Option<&(dyn Fn(&Point3<f64>) -> Option<Vec<Vector3<f64>>> + Sync)>,
+) -> Result<PoseSpread, String> {
+    let voxel = *p.scales().last().expect("at least one scale");
+    let (src, max_d) = p.scale(source, voxel);
+    let moved: Vec<Point3<f64>> = src.iter().map(|s| transform * s).collect();
+    let (pairs, _) = correspondences(&moved, tree, max_d, p.trim_ratio)?;
+    let mut terms: Vec<Term> = Vec::with_capacity(pairs.len());
+    for &(i, j, _) in &pairs {
+        let q = target[j];
+        let directions: Vec<Vector3<f64>> = match (p.method, target_normals) {
+            (IcpMethod::PointToPlane, Some(n)) => vec![n[j]],
+            _ => vec![Vector3::x(), Vector3::y(), Vector3::z()],
+        };
+        for e in directions {
+            let residual = e.dot(&(moved[i] - q));
+            terms.push(Term {
+                origin: Origin::Surface(i),
+                moved: moved[i],
+                anchor: q,
+                direction: e,
+                residual,
+                weight: p.kernel.weight(residual),
+            });
+        }
+    }
+    let surface_weight: f64 = terms.iter().map(|t| t.weight).sum();
+    if let Some(a) = anchors.filter(|a| !a.source.is_empty() && a.weight > 0.0) {
+        let each = a.each(surface_weight);
+        for (k, (s, q)) in a.source.iter().zip(&a.target).enumerate() {
+            let m = transform * s;
+            let directions = match p.method {
+                IcpMethod::PointToPlane => a.directions(k),
+                IcpMethod::PointToPoint => vec![Vector3::x(), Vector3::y(), Vector3::z()],
+            };
+            for e in directions {
+                terms.push(Term {
+                    origin: Origin::Landmark(k),
+                    moved: m,
+                    anchor: *q,
+                    direction: e,
+                    residual: e.dot(&(m - q)),
+                    weight: each,
+                });
+            }
+        }
+    }
+    let h_inverse = normal_matrix(terms.iter().map(|t| (t, 1.0)))
+        .try_inverse()
+        .filter(|m| m.iter().all(|x| x.is_finite()))
+        .ok_or("the final pairs do not pin the pose (J^T J is singular)")?;
+    // The residuals at the final pairs' own optimum: ICP stops when its
+    // figures change little, which leaves a smooth part of the last step in
+    // them that blocks would take for correlated noise.
+    let step = -(h_inverse
+        * terms.iter().fold(Vector6::zeros(), |g, t| {
+            g + t.row() * (t.weight * t.residual)
+        }));
+    for t in &mut terms {
+        t.residual += t.row().dot(&step);
+    }
+    let (noise, blocks) = noise_covariance(&terms, &h_inverse, block_mm);
+    let (independent, _) = noise_covariance(&terms, &h_inverse, 0.0);
+    let shift = match shifts {
+        Some(f) => shift_covariance(&terms, &src, anchors, transform, f)?,
+        None => Matrix6::zeros(),
+    };
+    Ok(PoseSpread {
+        covariance: noise + shift,
+        noise,
+        independent,
+        shift,
+        blocks,
+        terms: terms.len(),
+    })
+}
+
+/// sum of w J J^T over terms, each weight scaled by its factor.
+fn normal_matrix<'a>(terms: impl Iterator<Item = (&'a Term, f64)>) -> Matrix6<f64> {
+    terms.fold(Matrix6::zeros(), |h, (t, scale)| {
+        let row = t.row();
+        h + row * row.transpose() * (t.weight * scale)
+    })
+}
+
+/// The cluster-robust covariance H^-1 (c sum_b g_b g_b^T) H^-1 over blocks
+/// of `block_mm` (0: each term its own block; each landmark is always one
+/// block), with the small-sample factor c = G / (G - 1) (G - 1 > 0 blocks);
+/// and G.
+fn noise_covariance(
+    terms: &[Term],
+    h_inverse: &Matrix6<f64>,
+    block_mm: f64,
+) -> (Matrix6<f64>, usize) {
+    let mut sums: HashMap<(i64, i64, i64, i64), Vector6<f64>> = HashMap::new();
+    for (n, t) in terms.iter().enumerate() {
+        let key = match t.origin {
+            Origin::Landmark(k) => (i64::MIN, k as i64, 0, 0),
+            Origin::Surface(_) if block_mm <= 0.0 => (i64::MAX, n as i64, 0, 0),
+            Origin::Surface(_) => {
+                let c = t.anchor.coords / block_mm;
+                (
+                    0,
+                    c.x.floor() as i64,
+                    c.y.floor() as i64,
+                    c.z.floor() as i64,
+                )
+            }
+        };
+        *sums.entry(key).or_insert_with(Vector6::zeros) += t.row() * (t.weight * t.residual);
+    }
+    let g = sums.len();
+    // Blocks in a fixed order: the same bits however the map iterates.
+    let mut keys: Vec<_> = sums.keys().copied().collect();
+    keys.sort_unstable();
+    let meat = keys.iter().fold(Matrix6::zeros(), |m, k| {
+        let s = sums[k];
+        m + s * s.transpose()
+    });
+    let c = if g > 1 {
+        g as f64 / (g - 1) as f64
+    } else {
+        1.0
+    };
+    (h_inverse * meat * h_inverse * c, g)
+}
+
+/// The pose's response to each direction of the shift field, summed as
+/// outer products; on a regular subset of at most [`SHIFT_TERMS`] surface
+/// terms (and every landmark term), whose normal matrix it uses too.
+fn shift_covariance(
+    terms: &[Term],
+    source: &[Point3<f64>],
+    anchors: Option<&Anchors>,
+    transform: &Isometry3<f64>,
+    shifts: &(dyn Fn(&Point3<f64>) -> Option<Vec<Vector3<f64>>> + Sync),
+) -> Result<Matrix6<f64>, String> {
+    let surface = terms
+        .iter()
+        .filter(|t| matches!(t.origin, Origin::Surface(_)))
+        .count();
+    let stride = surface.div_ceil(SHIFT_TERMS).max(1);
+    let chosen: Vec<(&Term, f64)> = terms
+        .iter()
+        .enumerate()
+        .filter_map(|(n, t)| match t.origin {
+            Origin::Surface(_) => (n % stride == 0).then_some((t, stride as f64)),
+            Origin::Landmark(_) => Some((t, 1.0)),
+        })
+        .collect();
+    let h_inverse = normal_matrix(chosen.iter().copied())
+        .try_inverse()
+        .ok_or("the final pairs do not pin the pose (J^T J is singular)")?;
+    let rotation = transform.rotation;
+    // Each term's share of the gradient along every direction of the field.
+    let gradients: Vec<Option<Vec<Vector6<f64>>>> = chosen
+        .par_iter()
+        .map(|&(t, scale)| {
+            let point = match t.origin {
+                Origin::Surface(i) => source[i],
+                Origin::Landmark(k) => anchors.expect("landmark terms have anchors").source[k],
+            };
+            let row = t.row() * (t.weight * scale);
+            shifts(&point).map(|s| {
+                s.iter()
+                    .map(|d| row * t.direction.dot(&(rotation * d)))
+                    .collect()
+            })
+        })
+        .collect();
+    let mut total: Vec<Vector6<f64>> = Vec::new();
+    for g in gradients.into_iter().flatten() {
+        if total.is_empty() {
+            total = vec![Vector6::zeros(); g.len()];
+        }
+        if g.len() != total.len() {
+            return Err("the shift field gave points different numbers of directions".into());
+        }
+        total.iter_mut().zip(&g).for_each(|(a, b)| *a += b);
+    }
+    Ok(total.iter().fold(Matrix6::zeros(), |c, g| {
+        let response = -(h_inverse * g);
+        c + response * response.transpose()
+    }))
+}
+
+/// The covariance (mm^2, in the frame `transform` maps from) of where a
+/// target-frame point `target` maps back through the inverse of
+/// `transform` when the pose has covariance `covariance` (see
+/// [`PoseSpread::covariance`]).
+pub fn mapped_point_covariance(
+    transform: &Isometry3<f64>,
+    covariance: &Matrix6<f64>,
+    target: &Point3<f64>,
+) -> nalgebra::Matrix3<f64> {
+    // T' = exp(x) T maps q back to T^-1 (q - w x q - t): a change of
+    // R^T (q x w ... ) = R^T ([q]x w - t).
+    let q = target.coords;
+    let mut a = nalgebra::Matrix3x6::zeros();
+    a.fixed_view_mut::<3, 3>(0, 0).copy_from(&q.cross_matrix());
+    a.fixed_view_mut::<3, 3>(0, 3)
+        .copy_from(&(-nalgebra::Matrix3::identity()));
+    let r = transform.rotation.to_rotation_matrix().into_inner();
+    let m = r.transpose() * a;
+    m * covariance * m.transpose()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::register::{IcpMethod, IcpParams, Kernel, icp};
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+
+    /// A gently curved patch (a quadratic bowl over 80 x 80 mm) with its
+    /// normals, and its tree.
+    fn bowl() -> (Vec<Point3<f64>>, Vec<Vector3<f64>>, Nearest) {
+        let mut points = Vec::new();
+        let mut normals = Vec::new();
+        for i in 0..80 {
+            for j in 0..80 {
+                let (x, y) = (i as f64 - 40.0, j as f64 - 40.0);
+                let z = (x * x + 0.6 * y * y) / 120.0 + 0.002 * x * y * y / 10.0;
+                let n = Vector3::new(
+                    -(2.0 * x) / 120.0 - 0.0002 * y * y,
+                    -(1.2 * y) / 120.0 - 0.0004 * x * y,
+                    1.0,
+                );
+                points.push(Point3::new(x, y, z));
+                normals.push(n.normalize());
+            }
+        }
+        let tree = Nearest::new(&points).unwrap();
+        (points, normals, tree)
+    }
+
+    fn params() -> IcpParams {
+        IcpParams {
+            method: IcpMethod::PointToPlane,
+            max_distance_mm: 5.0,
+            trim_ratio: 1.0,
+            kernel: Kernel::None,
+            max_iterations: 50,
+            tolerance: 1e-10,
+            voxel_sizes_mm: vec![],
+        }
+    }
+
+    /// The source: the bowl's points each moved along its normal by noise,
+    /// independent (`patch` 1) or shared by square patches of `patch` x
+    /// `patch` points.
+    fn noisy(
+        points: &[Point3<f64>],
+        normals: &[Vector3<f64>],
+        patch: usize,
+        seed: u64,
+    ) -> Vec<Point3<f64>> {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+        let noise = Normal::new(0.0, 0.3).unwrap();
+        let cells = 80usize.div_ceil(patch);
+        let draws: Vec<f64> = (0..cells * cells).map(|_| noise.sample(&mut rng)).collect();
+        points
+            .iter()
+            .zip(normals)
+            .enumerate()
+            .map(|(k, (p, n))| {
+                let (i, j) = (k / 80, k % 80);
+                p + n * draws[(i / patch) * cells + j / patch]
+            })
+            .collect()
+    }
+
+    /// Monte Carlo: the spread of a target mapped back through 300 ICP
+    /// fits of noisy sources against what each fit's own spread predicts.
+    fn check(patch: usize, block_mm: f64) -> (f64, f64, f64) {
+        let (bowl, normals, tree) = bowl();
+        let q = Point3::new(5.0, -10.0, -60.0);
+        let mut mapped = Vec::new();
+        let mut predicted = 0.0;
+        let mut textbook = 0.0;
+        for seed in 0..300 {
+            let source = noisy(&bowl, &normals, patch, seed);
+            let r = icp(
+                &source,
+                &bowl,
+                Some(&normals),
+                &tree,
+                &Isometry3::identity(),
+                &params(),
+            )
+            .unwrap();
+            let s = pose_spread(
+                &source,
+                &bowl,
+                Some(&normals),
+                &tree,
+                &r.transform,
+                &params(),
+                None,
+                block_mm,
+                None,
+            )
+            .unwrap();
+            predicted += mapped_point_covariance(&r.transform, &s.covariance, &q).trace();
+            textbook += mapped_point_covariance(&r.transform, &s.independent, &q).trace();
+            mapped.push(r.transform.inverse() * q);
+        }
+        let n = mapped.len() as f64;
+        let mean = mapped.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / n;
+        let observed = mapped
+            .iter()
+            .map(|p| (p.coords - mean).norm_squared())
+            .sum::<f64>()
+            / (n - 1.0);
+        (
+            observed.sqrt(),
+            (predicted / n).sqrt(),
+            (textbook / n).sqrt(),
+        )
+    }
+
+    #[test]
+    fn independent_noise_is_predicted_by_the_textbook_and_the_blocks_alike() {
+        let (observed, blocks, textbook) = check(1, 8.0);
+        assert!(
+            (textbook / observed - 1.0).abs() < 0.15,
+            "{textbook} vs {observed}"
+        );
+        assert!(
+            (blocks / observed - 1.0).abs() < 0.2,
+            "{blocks} vs {observed}"
+        );
+    }
+
+    #[test]
+    fn correlated_noise_is_predicted_by_the_blocks_not_the_textbook() {
+        // Noise shared by 5 x 5 mm patches: the textbook formula counts 25
+        // times too many independent pairs (about 5 times too small a
+        // spread); 20 mm blocks see it.
+        let (observed, blocks, textbook) = check(5, 20.0);
+        assert!(textbook < 0.4 * observed, "{textbook} vs {observed}");
+        assert!(
+            (blocks / observed - 1.0).abs() < 0.25,
+            "{blocks} vs {observed}"
+        );
+    }
+
+    #[test]
+    fn a_common_shift_moves_the_pose_with_it() {
+        // Every source point shifted by the same (1, 0, 0.5) mm per standard
+        // deviation: ICP follows it in full, so the target moves by as much.
+        let (bowl, normals, tree) = bowl();
+        let r = icp(
+            &bowl,
+            &bowl,
+            Some(&normals),
+            &tree,
+            &Isometry3::identity(),
+            &params(),
+        )
+        .unwrap();
+        let field = |_: &Point3<f64>| Some(vec![Vector3::new(1.0, 0.0, 0.5)]);
+        let s = pose_spread(
+            &bowl,
+            &bowl,
+            Some(&normals),
+            &tree,
+            &r.transform,
+            &params(),
+            None,
+            10.0,
+            Some(&field),
+        )
+        .unwrap();
+        let c = mapped_point_covariance(&r.transform, &s.shift, &Point3::new(3.0, 4.0, -50.0));
+        let expected = nalgebra::Matrix3::new(1.0, 0.0, 0.5, 0.0, 0.0, 0.0, 0.5, 0.0, 0.25);
+        assert!((c - expected).amax() < 1e-3, "{c}");
+        assert!(s.noise.amax() < 1e-12, "a perfect fit has no noise");
+    }
+}

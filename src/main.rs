@@ -388,7 +388,7 @@ fn execute(cli: Cli, registry: &Registry) -> anyhow::Result<ExitCode> {
             std::fs::write(
                 &targets,
                 serde_json::to_string_pretty(&fusegraph_nodes::io::slicer_markups(
-                    &lesions, "lesion",
+                    &lesions, "lesion", None,
                 ))?,
             )
             .with_context(|| targets.display().to_string())?;

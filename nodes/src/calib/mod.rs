@@ -32,7 +32,7 @@ pub use normal_equations::{BlockNormal, DampedSystem, DenseNormal};
 pub use rectify::{StereoRectification, rectify, remap};
 pub use rig_parameters::{
     INTRINSIC_NAMES, POSE_NAMES, ParameterCovariance, RigModel, parameter_names, perturbed_rigs,
-    triangulation_shifts,
+    triangulated_covariance, triangulation_shifts,
 };
 pub use stereo::{RigSpread, StereoCalibration, calibrate_stereo};
 pub use subpixel::{refine_corner, window_for_square};

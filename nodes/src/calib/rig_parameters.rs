@@ -10,7 +10,9 @@
 use crate::calib::rig_isometry;
 use crate::camera::CameraModel;
 use fusegraph_engine::value::{StereoRig, Table};
-use nalgebra::{DMatrix, Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{
+    DMatrix, Isometry3, Matrix3, Matrix4x3, Point3, Translation3, UnitQuaternion, Vector3,
+};
 
 /// Intrinsics in the solver's order, with their units.
 pub const INTRINSIC_NAMES: [&str; 9] = [
@@ -199,20 +201,8 @@ pub fn triangulation_shifts(
     perturbed: &[(RigModel, RigModel)],
     p: &Point3<f64>,
 ) -> Option<Vec<Vector3<f64>>> {
-    // A: pixels per mm, by central differences of 1 um.
-    const H_MM: f64 = 1e-3;
-    let mut a = nalgebra::Matrix4x3::zeros();
-    for axis in 0..3 {
-        let mut step = Vector3::zeros();
-        step[axis] = H_MM;
-        let (plus, minus) = (rig.project(&(p + step))?, rig.project(&(p - step))?);
-        for r in 0..4 {
-            a[(r, axis)] = (plus[r] - minus[r]) / (2.0 * H_MM);
-        }
-    }
-    let normal: Matrix3<f64> = a.transpose() * a;
-    let inverse = normal.try_inverse()?;
-    let solve = inverse * a.transpose();
+    let a = pixel_jacobian(rig, p)?;
+    let solve = (a.transpose() * a).try_inverse()? * a.transpose();
     perturbed
         .iter()
         .map(|(plus, minus)| {
@@ -221,6 +211,41 @@ pub fn triangulation_shifts(
             Some(-(solve * b))
         })
         .collect()
+}
+
+/// The raw pixels' derivative in the point (4 x 3, px per mm; rows u, v
+/// left then right), by central differences of 1 um; `None` behind a
+/// camera.
+fn pixel_jacobian(rig: &RigModel, p: &Point3<f64>) -> Option<Matrix4x3<f64>> {
+    const H_MM: f64 = 1e-3;
+    let mut a = Matrix4x3::zeros();
+    for axis in 0..3 {
+        let mut step = Vector3::zeros();
+        step[axis] = H_MM;
+        let (plus, minus) = (rig.project(&(p + step))?, rig.project(&(p - step))?);
+        for r in 0..4 {
+            a[(r, axis)] = (plus[r] - minus[r]) / (2.0 * H_MM);
+        }
+    }
+    Some(a)
+}
+
+/// The covariance (mm^2, left camera frame) of point `p` triangulated from
+/// the raw pixels it projects to, each of whose coordinates is off by
+/// independent noise of `sigma_px`, by a rig whose parameters have the
+/// spread `perturbed` was made from ([`perturbed_rigs`]; empty: none):
+/// sigma^2 (A^T A)^-1 plus the outer products of the calibration's shifts.
+/// `None` behind a camera or where the rays are parallel.
+pub fn triangulated_covariance(
+    rig: &RigModel,
+    perturbed: &[(RigModel, RigModel)],
+    p: &Point3<f64>,
+    sigma_px: f64,
+) -> Option<Matrix3<f64>> {
+    let a = pixel_jacobian(rig, p)?;
+    let noise = (a.transpose() * a).try_inverse()? * sigma_px.powi(2);
+    let shifts = triangulation_shifts(rig, perturbed, p)?;
+    Some(shifts.iter().fold(noise, |c, s| c + s * s.transpose()))
 }
 
 /// The rigs moved by + and - each of `directions`, for
@@ -273,7 +298,7 @@ mod tests {
         for _ in 0..20 {
             let u = rig.project(&p).unwrap();
             let r = nalgebra::Vector4::from_fn(|i, _| u[i] - pixels[i]);
-            let mut a = nalgebra::Matrix4x3::zeros();
+            let mut a = Matrix4x3::zeros();
             for axis in 0..3 {
                 let mut s = Vector3::zeros();
                 s[axis] = 1e-4;
@@ -371,5 +396,61 @@ mod tests {
             .perturbed(&["middle_fx_px".to_string()], &[1.0])
             .unwrap_err();
         assert!(e.contains("`middle_fx_px`"), "{e}");
+    }
+
+    #[test]
+    fn a_points_covariance_is_the_spread_of_its_triangulations() {
+        // 2,000 triangulations of the pixels of one point, each coordinate
+        // off by 0.2 px of noise, with the rig itself off along its spread
+        // (0.5 px of left fx, 0.05 mm of baseline) drawn anew each time.
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let rig = rig();
+        let names: Vec<String> = ["left_fx_px", "translation_x_mm"]
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        let spread = ParameterCovariance {
+            names: names.clone(),
+            matrix: DMatrix::from_diagonal(&nalgebra::DVector::from_vec(vec![0.25, 0.0025])),
+        };
+        let rigs = perturbed_rigs(&rig, &names, &spread.sigma_directions()).unwrap();
+        let p = Point3::new(-30.0, 20.0, 550.0);
+        let predicted = triangulated_covariance(&rig, &rigs, &p, 0.2).unwrap();
+        let pixels = rig.project(&p).unwrap();
+        let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+        let (pixel, unit) = (
+            Normal::new(0.0, 0.2).unwrap(),
+            Normal::new(0.0, 1.0).unwrap(),
+        );
+        let draws: Vec<Vector3<f64>> = (0..2000)
+            .map(|_| {
+                let noisy: [f64; 4] = std::array::from_fn(|i| pixels[i] + pixel.sample(&mut rng));
+                // The true rig is the estimate off by minus the error.
+                let error = [0.5 * unit.sample(&mut rng), 0.05 * unit.sample(&mut rng)];
+                let truth = rig.perturbed(&names, &error).unwrap();
+                let seen = truth.project(&p).unwrap();
+                let observed: [f64; 4] = std::array::from_fn(|i| noisy[i] - pixels[i] + seen[i]);
+                triangulate(&rig, &observed, p).coords
+            })
+            .collect();
+        let mean = draws.iter().sum::<Vector3<f64>>() / draws.len() as f64;
+        let sample = draws.iter().fold(Matrix3::zeros(), |c, d| {
+            c + (d - mean) * (d - mean).transpose()
+        }) / (draws.len() - 1) as f64;
+        for i in 0..3 {
+            let ratio = (sample[(i, i)] / predicted[(i, i)]).sqrt();
+            assert!(
+                (ratio - 1.0).abs() < 0.1,
+                "axis {i}: sd ratio {ratio}\n{sample}\n{predicted}"
+            );
+        }
+        // From the pixels alone, depth is as the textbook has it: z^2 / (f b)
+        // times the disparity's noise, sqrt(2) x 0.2 px, here about 1.2 mm
+        // (to 10 %: the rig verges and the point is off-axis).
+        let pixels_only = triangulated_covariance(&rig, &[], &p, 0.2).unwrap();
+        let textbook = 550.0f64.powi(2) / (1300.0 * 55.0) * 0.2 * 2f64.sqrt();
+        let sd_z = pixels_only[(2, 2)].sqrt();
+        assert!((sd_z / textbook - 1.0).abs() < 0.1, "{sd_z} vs {textbook}");
     }
 }

@@ -2,9 +2,68 @@
 //! or RAS) and CSV with `x`, `y`, `z` columns (mm; `x_mm` etc. too, as
 //! [`markers_csv`] writes them).
 
-use fusegraph_engine::value::Markers;
+use fusegraph_engine::value::{Markers, Table};
 use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
 use std::io::{Read, Write};
+
+/// Figures attached to markers by id (e.g. each target's predicted error):
+/// extra CSV columns and, in a markups file, each control point's
+/// description.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct MarkerNotes {
+    /// Column names (units in them), without `id`.
+    pub columns: Vec<String>,
+    /// The values of each marker that has them, by id.
+    pub rows: HashMap<u32, Vec<f64>>,
+}
+
+impl MarkerNotes {
+    /// From a table with an `id` column (whole numbers); the others become
+    /// the notes' columns.
+    pub fn from_table(table: &Table) -> Result<Self, String> {
+        let id_column = table
+            .columns
+            .iter()
+            .position(|c| c == "id")
+            .ok_or("the table has no `id` column")?;
+        let width = table.columns.len();
+        let mut rows = HashMap::new();
+        for row in table.data.chunks(width) {
+            let id = row[id_column];
+            if id < 0.0 || id.fract() != 0.0 || id > u32::MAX as f64 {
+                return Err(format!("`id` {id} is not a marker id"));
+            }
+            let values = row
+                .iter()
+                .enumerate()
+                .filter(|&(k, _)| k != id_column)
+                .map(|(_, v)| *v)
+                .collect();
+            rows.insert(id as u32, values);
+        }
+        let columns = table
+            .columns
+            .iter()
+            .enumerate()
+            .filter(|&(k, _)| k != id_column)
+            .map(|(_, c)| c.clone())
+            .collect();
+        Ok(MarkerNotes { columns, rows })
+    }
+
+    /// `name=value; ...` for marker `id`, empty without a row.
+    fn description(&self, id: u32) -> String {
+        self.rows.get(&id).map_or_else(String::new, |values| {
+            self.columns
+                .iter()
+                .zip(values)
+                .map(|(c, v)| format!("{c}={v:.4}"))
+                .collect::<Vec<_>>()
+                .join("; ")
+        })
+    }
+}
 
 const MARKUPS_SCHEMA: &str = "https://raw.githubusercontent.com/slicer/slicer/master/Modules/Loadable/Markups/Resources/Schema/markups-schema-v1.0.3.json#";
 
@@ -32,6 +91,7 @@ struct MarkupList<'a> {
 struct ControlPoints<'a> {
     markers: &'a Markers,
     name: &'a str,
+    notes: Option<&'a MarkerNotes>,
 }
 
 #[derive(Serialize)]
@@ -39,6 +99,8 @@ struct ControlPoints<'a> {
 struct ControlPointOut {
     id: String,
     label: String,
+    #[serde(skip_serializing_if = "String::is_empty")]
+    description: String,
     position: [f64; 3],
     position_status: &'static str,
     selected: bool,
@@ -56,6 +118,7 @@ impl Serialize for ControlPoints<'_> {
                 .map(|(p, id)| ControlPointOut {
                     id: id.to_string(),
                     label: format!("{}-{id}", self.name),
+                    description: self.notes.map_or_else(String::new, |n| n.description(*id)),
                     position: [p[0], p[1], p[2]],
                     position_status: "defined",
                     selected: true,
@@ -68,8 +131,13 @@ impl Serialize for ControlPoints<'_> {
 
 /// A Slicer markups fiducial list: every control point `defined`, positions in
 /// LPS mm (Slicer converts to its RAS display itself), labelled `name-id`.
-/// Serialise it with `serde_json` (to a writer, for large sets).
-pub fn slicer_markups<'a>(markers: &'a Markers, name: &'a str) -> SlicerMarkups<'a> {
+/// Serialise it with `serde_json` (to a writer, for large sets). With
+/// `notes`, each point's description lists its notes.
+pub fn slicer_markups<'a>(
+    markers: &'a Markers,
+    name: &'a str,
+    notes: Option<&'a MarkerNotes>,
+) -> SlicerMarkups<'a> {
     SlicerMarkups {
         schema: MARKUPS_SCHEMA,
         markups: [MarkupList {
@@ -78,16 +146,35 @@ pub fn slicer_markups<'a>(markers: &'a Markers, name: &'a str) -> SlicerMarkups<
             coordinate_units: "mm",
             locked: false,
             label_format: "%N-%d",
-            control_points: ControlPoints { markers, name },
+            control_points: ControlPoints {
+                markers,
+                name,
+                notes,
+            },
         }],
     }
 }
 
-/// Writes the markers as CSV (see [`markers_csv`]) to `out`, row by row.
-pub fn write_markers_csv(markers: &Markers, out: &mut impl Write) -> std::io::Result<()> {
-    writeln!(out, "id,x_mm,y_mm,z_mm,frame")?;
+/// Writes the markers as CSV (see [`markers_csv`]) to `out`, row by row;
+/// with `notes`, their columns after `frame` (empty for a marker without).
+pub fn write_markers_csv(
+    markers: &Markers,
+    notes: Option<&MarkerNotes>,
+    out: &mut impl Write,
+) -> std::io::Result<()> {
+    write!(out, "id,x_mm,y_mm,z_mm,frame")?;
+    let extra = notes.map_or(0, |n| n.columns.len());
+    for c in notes.iter().flat_map(|n| &n.columns) {
+        write!(out, ",{c}")?;
+    }
+    writeln!(out)?;
     for (p, id) in markers.positions_mm.chunks(3).zip(markers.ids.iter()) {
-        writeln!(out, "{id},{},{},{},{}", p[0], p[1], p[2], markers.frame)?;
+        write!(out, "{id},{},{},{},{}", p[0], p[1], p[2], markers.frame)?;
+        match notes.and_then(|n| n.rows.get(id)) {
+            Some(values) => values.iter().try_for_each(|v| write!(out, ",{v}"))?,
+            None => (0..extra).try_for_each(|_| write!(out, ","))?,
+        }
+        writeln!(out)?;
     }
     Ok(())
 }
@@ -111,7 +198,7 @@ pub fn write_markers_csv(markers: &Markers, out: &mut impl Write) -> std::io::Re
 /// ```
 pub fn markers_csv(markers: &Markers) -> String {
     let mut out = Vec::new();
-    write_markers_csv(markers, &mut out).expect("writing to memory");
+    write_markers_csv(markers, None, &mut out).expect("writing to memory");
     String::from_utf8(out).expect("ASCII")
 }
 
@@ -333,7 +420,7 @@ mod tests {
     #[test]
     fn markups_are_lps_and_defined() {
         let m = Markers::new(vec![1.0, -2.0, 3.5, 4.0, 5.0, 6.0], vec![1, 2], "mri_lps").unwrap();
-        let j = serde_json::to_value(slicer_markups(&m, "M")).unwrap();
+        let j = serde_json::to_value(slicer_markups(&m, "M", None)).unwrap();
         let mk = &j["markups"][0];
         assert_eq!(mk["coordinateSystem"], "LPS");
         assert_eq!(mk["coordinateUnits"], "mm");
@@ -347,7 +434,7 @@ mod tests {
     #[test]
     fn what_write_markers_writes_reads_back() {
         let m = Markers::new(vec![1.0, -2.5, 30.0, 4.0, 5.0, 6.0], vec![7, 9], "mri_lps").unwrap();
-        let text = serde_json::to_string_pretty(&slicer_markups(&m, "t")).unwrap();
+        let text = serde_json::to_string_pretty(&slicer_markups(&m, "t", None)).unwrap();
         let read = parse_markups(&text).unwrap();
         assert!(read.notes.is_empty(), "{:?}", read.notes);
         let (p, ids) = points_ids(read);
@@ -441,5 +528,52 @@ mod tests {
         let read = parse_markups(text).unwrap();
         assert_eq!(read.points, vec![[1.0, 2.0, 3.0]]);
         assert!(read.notes[0].contains("read as LPS"), "{:?}", read.notes);
+    }
+
+    #[test]
+    fn notes_become_csv_columns_and_markup_descriptions() {
+        let m = Markers::new(
+            vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
+            vec![3, 8],
+            "camera_left",
+        )
+        .unwrap();
+        let table = Table::new(
+            vec!["predicted_tre_mm".into(), "id".into(), "bound95_mm".into()],
+            vec![0.25, 8.0, 0.5],
+        )
+        .unwrap();
+        let notes = MarkerNotes::from_table(&table).unwrap();
+        let mut out = Vec::new();
+        write_markers_csv(&m, Some(&notes), &mut out).unwrap();
+        let csv = String::from_utf8(out).unwrap();
+        let lines: Vec<&str> = csv.lines().collect();
+        assert_eq!(
+            lines[0],
+            "id,x_mm,y_mm,z_mm,frame,predicted_tre_mm,bound95_mm"
+        );
+        assert_eq!(lines[1], "3,1,2,3,camera_left,,", "a marker without notes");
+        assert_eq!(lines[2], "8,4,5,6,camera_left,0.25,0.5");
+        let j = serde_json::to_value(slicer_markups(&m, "T", Some(&notes))).unwrap();
+        let points = &j["markups"][0]["controlPoints"];
+        assert!(points[0].get("description").is_none());
+        assert_eq!(
+            points[1]["description"],
+            "predicted_tre_mm=0.2500; bound95_mm=0.5000"
+        );
+        // Read back, the extra columns are ignored.
+        assert_eq!(parse_points_csv(&csv).unwrap().ids, vec![3, 8]);
+        let no_id = Table::new(vec!["a".into()], vec![1.0]).unwrap();
+        assert!(
+            MarkerNotes::from_table(&no_id)
+                .unwrap_err()
+                .contains("`id`")
+        );
+        let bad_id = Table::new(vec!["id".into()], vec![1.5]).unwrap();
+        assert!(
+            MarkerNotes::from_table(&bad_id)
+                .unwrap_err()
+                .contains("1.5")
+        );
     }
 }

@@ -28,8 +28,8 @@ pub use images::{
 pub use itk_transform::{itk_transform_text, read_itk_transform};
 pub use json::value_to_json;
 pub use markers::{
-    ReadPoints, SlicerMarkups, markers_csv, parse_markups, parse_points_csv, read_markups,
-    slicer_markups, write_markers_csv,
+    MarkerNotes, ReadPoints, SlicerMarkups, markers_csv, parse_markups, parse_points_csv,
+    read_markups, slicer_markups, write_markers_csv,
 };
 pub use meshes::{write_ply, write_stl};
 pub use opencv_yaml::rig_yaml;

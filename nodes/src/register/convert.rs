@@ -2,9 +2,10 @@
 //! registration algorithms' points and isometries.
 
 use super::Similarity;
+use crate::calib::ParameterCovariance;
 use crate::camera::{isometry_from_matrix, isometry_to_matrix};
-use fusegraph_engine::value::Transform;
-use nalgebra::Isometry3;
+use fusegraph_engine::value::{Table, Transform};
+use nalgebra::{Isometry3, Matrix6};
 
 pub(crate) use crate::cloud::convert::{marker_points, markers_value};
 
@@ -31,4 +32,39 @@ pub(crate) fn similarity_value(sim: &Similarity, from: &str, to: &str) -> Transf
         from: from.into(),
         to: to.into(),
     }
+}
+
+/// The names of the pose covariance's rows and columns.
+pub(crate) const POSE_COVARIANCE_NAMES: [&str; 6] = [
+    "rotation_x_rad",
+    "rotation_y_rad",
+    "rotation_z_rad",
+    "translation_x_mm",
+    "translation_y_mm",
+    "translation_z_mm",
+];
+
+/// A pose covariance as a table (`register.icp`'s `covariance`).
+pub(crate) fn pose_covariance_table(c: &Matrix6<f64>) -> Table {
+    ParameterCovariance {
+        names: POSE_COVARIANCE_NAMES
+            .iter()
+            .map(|n| n.to_string())
+            .collect(),
+        matrix: nalgebra::DMatrix::from_fn(6, 6, |r, k| c[(r, k)]),
+    }
+    .to_table()
+}
+
+/// A pose covariance from such a table, checked.
+pub(crate) fn pose_covariance_from_table(t: &Table) -> Result<Matrix6<f64>, String> {
+    let c = ParameterCovariance::from_table(t)?;
+    if c.names != POSE_COVARIANCE_NAMES {
+        return Err(format!(
+            "a pose covariance has the columns {}, not {}",
+            POSE_COVARIANCE_NAMES.join(", "),
+            c.names.join(", ")
+        ));
+    }
+    Ok(Matrix6::from_fn(|r, k| c.matrix[(r, k)]))
 }

@@ -108,3 +108,88 @@ pub(crate) fn icp_figures(
     }
     Ok(())
 }
+
+/// Each target (dot, id) with the ellipse 95 % of its predicted errors fall
+/// within (chi-square(2) quantile 5.991 of the marginal covariance), in
+/// three panels: the frame's x-y, x-z and y-z planes, each scaled to its
+/// largest ellipse and centred on each target in turn. An SVG document.
+pub(crate) fn error_ellipses_svg(
+    ids: &[u32],
+    points: &[Point3<f64>],
+    covariances: &[nalgebra::Matrix3<f64>],
+    frame: &str,
+) -> String {
+    use std::fmt::Write;
+    const PANEL: f64 = 220.0;
+    const CHI2_2_95: f64 = 5.991;
+    let planes = [
+        (0usize, 1usize, "x", "y"),
+        (0, 2, "x", "z"),
+        (1, 2, "y", "z"),
+    ];
+    let rows = ids.len().max(1);
+    let (width, height) = (3.0 * PANEL + 40.0, rows as f64 * PANEL + 60.0);
+    let mut svg = format!(
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" font-family="sans-serif" font-size="12">"#
+    );
+    let _ = write!(
+        svg,
+        r#"<text x="10" y="18">Predicted 95 % error ellipse of each target ({frame}, mm); grid 0.5 mm</text>"#
+    );
+    for (row, ((id, p), c)) in ids.iter().zip(points).zip(covariances).enumerate() {
+        for (col, &(a, b, la, lb)) in planes.iter().enumerate() {
+            let (x0, y0) = (20.0 + col as f64 * PANEL, 30.0 + row as f64 * PANEL);
+            let (cx, cy) = (x0 + PANEL / 2.0, y0 + PANEL / 2.0);
+            let m = nalgebra::Matrix2::new(c[(a, a)], c[(a, b)], c[(b, a)], c[(b, b)]);
+            let e = m.symmetric_eigen();
+            let radii = e.eigenvalues.map(|l| (l.max(0.0) * CHI2_2_95).sqrt());
+            // The panel spans twice the largest semi-axis (at least 0.5 mm).
+            let scale = 0.45 * PANEL / radii.max().max(0.25);
+            let angle = e.eigenvectors[(1, 0)]
+                .atan2(e.eigenvectors[(0, 0)])
+                .to_degrees();
+            let _ = write!(
+                svg,
+                r##"<rect x="{x0}" y="{y0}" width="{w}" height="{w}" fill="none" stroke="#ccc"/>"##,
+                w = PANEL - 10.0
+            );
+            let step = 0.5 * scale;
+            let mut k = -((PANEL / 2.0 / step).floor());
+            while k * step <= PANEL / 2.0 - 10.0 {
+                let (gx, gy) = (cx + k * step, cy + k * step);
+                if gx > x0 && gx < x0 + PANEL - 10.0 {
+                    let _ = write!(
+                        svg,
+                        r##"<line x1="{gx:.1}" y1="{y0}" x2="{gx:.1}" y2="{:.1}" stroke="#eee"/>"##,
+                        y0 + PANEL - 10.0
+                    );
+                }
+                if gy > y0 && gy < y0 + PANEL - 10.0 {
+                    let _ = write!(
+                        svg,
+                        r##"<line x1="{x0}" y1="{gy:.1}" x2="{:.1}" y2="{gy:.1}" stroke="#eee"/>"##,
+                        x0 + PANEL - 10.0
+                    );
+                }
+                k += 1.0;
+            }
+            let _ = write!(
+                svg,
+                r##"<ellipse cx="{cx:.1}" cy="{cy:.1}" rx="{:.1}" ry="{:.1}" transform="rotate({angle:.2} {cx:.1} {cy:.1})" fill="rgba(220,40,40,0.15)" stroke="#c22"/><circle cx="{cx:.1}" cy="{cy:.1}" r="3" fill="#c22"/>"##,
+                radii[0] * scale,
+                radii[1] * scale
+            );
+            let _ = write!(
+                svg,
+                r#"<text x="{:.1}" y="{:.1}">target {id} ({:.1}, {:.1}, {:.1}): {la} right, {lb} down</text>"#,
+                x0 + 4.0,
+                y0 + 14.0,
+                p.x,
+                p.y,
+                p.z
+            );
+        }
+    }
+    svg.push_str("</svg>");
+    svg
+}

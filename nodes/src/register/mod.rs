@@ -26,7 +26,7 @@ pub use target_error::{
     FiducialConfiguration, MarkerPrediction, error_bound_mm, expected_fre, fle_from_fre,
     predict_marker_tre,
 };
-pub use targets::map_targets;
+pub use targets::{map_targets, mapped_target_covariances};
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;

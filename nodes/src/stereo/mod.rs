@@ -35,8 +35,9 @@ pub use features::{
 };
 pub use markers::{
     Blob, BlobParams, GREY_CHROMA_LEVELS, MomentEllipse, PairParams, StereoMarker, StereoMarkers,
-    colour_mask, components, dilate, ellipse_fit, erode, find_blobs, hsv, hue_score, max_chroma,
-    open_close, pair_blobs, soft_centroid, stereo_markers, stereo_markers_unrectified,
+    colour_mask, components, dilate, ellipse_fit, erode, find_blobs, hsv, hue_score,
+    localisation_noise_px, max_chroma, open_close, pair_blobs, soft_centroid, stereo_markers,
+    stereo_markers_unrectified,
 };
 pub use ops::BLOB_COLUMNS;
 pub use triangulate::{point_from_disparity, triangulate_disparity};

@@ -1,17 +1,23 @@
 //! `register.icp`: iterative closest point between two clouds.
 
+use crate::calib::{ParameterCovariance, RigModel, perturbed_rigs, triangulation_shifts};
 use crate::cloud::Nearest;
 use crate::cloud::convert::{cloud_normals, cloud_points};
-use crate::register::convert::{marker_points, transform_isometry, transform_value};
+use crate::register::convert::{
+    marker_points, pose_covariance_table, transform_isometry, transform_value,
+};
 use crate::register::figures::icp_figures;
-use crate::register::{Anchors, IcpMethod, IcpParams, Kernel, icp_anchored, normals_near};
+use crate::register::{
+    Anchors, IcpMethod, IcpParams, Kernel, PoseSpread, icp_anchored, normals_near, pose_spread,
+};
 use fusegraph_engine::typed::prelude::*;
-use fusegraph_engine::value::{Markers, PointCloud, Table, Transform};
-use nalgebra::{Isometry3, Point3};
+use fusegraph_engine::value::{Markers, PointCloud, StereoRig, Table, Transform};
+use nalgebra::{Isometry3, Matrix6, Point3, Vector3};
 
 /// Iterative closest point: source cloud onto target cloud
 #[derive(Op)]
-#[op(name = "register.icp", version = 3)]
+// 4: the pose's covariance (surface noise in blocks, and the rig's calibration).
+#[op(name = "register.icp", version = 4)]
 pub struct Icp {
     /// Error metric
     #[param(default = IcpMethod::PointToPlane)]
@@ -51,6 +57,12 @@ pub struct Icp {
     /// their matches (RMS) than the start had them
     #[param(default = 1.0, unit = "mm", min = 0.0)]
     pub landmark_drift_mm: f64,
+    /// For the pose's covariance: the surfaces' errors are taken as
+    /// correlated within cubes of this size (target frame) and independent
+    /// between them; wider than a reconstructed surface's matching and
+    /// smoothing windows (0: every pair independent, the textbook formula)
+    #[param(default = 20.0, unit = "mm", min = 0.0)]
+    pub error_block_mm: f64,
 }
 
 /// How landmarks join the surface pairs (`landmark_fit`).
@@ -100,6 +112,12 @@ pub struct IcpInputs {
     pub landmarks_source: Option<Arc<Markers>>,
     /// The same landmarks in the target frame
     pub landmarks_target: Option<Arc<Markers>>,
+    /// The stereo rig that triangulated the source cloud and landmarks (in
+    /// its left camera's frame): with `rig_covariance`, its calibration's
+    /// spread joins the pose's covariance
+    pub rig: Option<Arc<StereoRig>>,
+    /// The rig's parameter covariance (calib.stereo_calibrate's `covariance`)
+    pub rig_covariance: Option<Arc<Table>>,
 }
 
 /// Landmarks in the source frame and their matches in the target frame.
@@ -149,6 +167,10 @@ pub struct IcpOutputs {
     pub transform: Transform,
     /// iteration, voxel_mm, rmse_mm, fitness, pairs
     pub trace: Table,
+    /// The pose's covariance: of a small turn (`rotation_*_rad`, about the
+    /// target frame's axes) and shift (`translation_*_mm`) applied after the
+    /// transform in the target frame; 6 x 6, one row per column
+    pub covariance: Table,
 }
 
 impl RunOp for Icp {
@@ -236,11 +258,75 @@ impl RunOp for Icp {
         )
         .map_err(|e| OpError::invalid(e.0))?;
         icp_figures(ctx, &trace, &sp, &tp, &init, &r.transform)?;
+        let field =
+            calibration_field(ctx, inputs.rig.as_deref(), inputs.rig_covariance.as_deref())?;
+        let spread = pose_spread(
+            &sp,
+            &tp,
+            tn.as_deref(),
+            &tree,
+            &r.transform,
+            &p,
+            anchors.as_ref(),
+            self.error_block_mm,
+            field
+                .as_ref()
+                .map(|f| f as &(dyn Fn(&Point3<f64>) -> Option<Vec<Vector3<f64>>> + Sync)),
+        )
+        .map_err(OpError::invalid)?;
+        report_spread(ctx, &spread);
         Ok(IcpOutputs {
             transform: transform_value(&r.transform, &s.frame, &t.frame),
             trace,
+            covariance: pose_covariance_table(&spread.covariance),
         })
     }
+}
+
+/// How each source point moves along each standard-deviation direction of
+/// the rig's calibration (first order), or `None` without a rig.
+#[allow(clippy::type_complexity)]
+fn calibration_field(
+    ctx: &mut RunCtx,
+    rig: Option<&StereoRig>,
+    covariance: Option<&Table>,
+) -> Result<Option<impl Fn(&Point3<f64>) -> Option<Vec<Vector3<f64>>> + Sync + use<>>, OpError> {
+    let (rig, covariance) = match (rig, covariance) {
+        (None, None) => return Ok(None),
+        (Some(r), Some(c)) => (r, c),
+        _ => {
+            return Err(OpError::invalid(
+                "connect both rig and rig_covariance, or neither",
+            ));
+        }
+    };
+    if covariance.row_count() == 0 {
+        ctx.note(
+            "the rig's calibration has no covariance (a parameter undetermined): its spread is \
+             not in the pose's covariance",
+        );
+        return Ok(None);
+    }
+    let covariance = ParameterCovariance::from_table(covariance)
+        .map_err(|e| OpError::invalid(format!("rig_covariance: {e}")))?;
+    let model = RigModel::from_value(rig);
+    let rigs = perturbed_rigs(&model, &covariance.names, &covariance.sigma_directions())
+        .map_err(|e| OpError::invalid(format!("rig_covariance: {e}")))?;
+    Ok(Some(move |p: &Point3<f64>| {
+        triangulation_shifts(&model, &rigs, p)
+    }))
+}
+
+/// The pose's standard deviations and what they come from, as metrics.
+fn report_spread(ctx: &mut RunCtx, s: &PoseSpread) {
+    let rotation = |c: &Matrix6<f64>| (0..3).map(|i| c[(i, i)]).sum::<f64>().max(0.0).sqrt();
+    let translation = |c: &Matrix6<f64>| (3..6).map(|i| c[(i, i)]).sum::<f64>().max(0.0).sqrt();
+    ctx.metric("rotation_sd_deg", rotation(&s.covariance).to_degrees());
+    ctx.metric("translation_sd_mm", translation(&s.covariance));
+    ctx.metric("noise_translation_sd_mm", translation(&s.noise));
+    ctx.metric("independent_translation_sd_mm", translation(&s.independent));
+    ctx.metric("calibration_translation_sd_mm", translation(&s.shift));
+    ctx.metric("error_blocks", s.blocks as f64);
 }
 
 #[cfg(test)]
@@ -263,6 +349,8 @@ mod tests {
             init: None,
             landmarks_source: a,
             landmarks_target: b,
+            rig: None,
+            rig_covariance: None,
         }
     }
 
@@ -289,5 +377,46 @@ mod tests {
         let shift = Isometry3::translation(1.0, 0.0, 0.0);
         let rms = landmark_rms(&source, &target, &shift);
         assert!((rms - (12.5f64).sqrt()).abs() < 1e-12, "{rms}");
+    }
+
+    #[test]
+    fn a_rig_comes_with_its_covariance() {
+        let rig = StereoRig {
+            left: fusegraph_engine::value::Camera {
+                width: 8,
+                height: 6,
+                k: [[10.0, 0.0, 4.0], [0.0, 10.0, 3.0], [0.0, 0.0, 1.0]],
+                distortion: [0.0; 5],
+            },
+            right: fusegraph_engine::value::Camera {
+                width: 8,
+                height: 6,
+                k: [[10.0, 0.0, 4.0], [0.0, 10.0, 3.0], [0.0, 0.0, 1.0]],
+                distortion: [0.0; 5],
+            },
+            rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            translation_mm: [-50.0, 0.0, 0.0],
+        };
+        let mut ctx = RunCtx::new("icp", &std::env::temp_dir());
+        let e = calibration_field(&mut ctx, Some(&rig), None)
+            .map(|_| ())
+            .unwrap_err();
+        assert!(e.to_string().contains("rig and rig_covariance"), "{e}");
+        let unknown = Table::new(vec!["left_zoom".into()], vec![1.0]).unwrap();
+        let e = calibration_field(&mut ctx, Some(&rig), Some(&unknown))
+            .map(|_| ())
+            .unwrap_err();
+        assert!(e.to_string().contains("rig_covariance: `left_zoom`"), "{e}");
+        let empty = Table::new(vec!["left_fx_px".into()], Vec::new()).unwrap();
+        assert!(
+            calibration_field(&mut ctx, Some(&rig), Some(&empty))
+                .unwrap()
+                .is_none()
+        );
+        assert!(
+            ctx.notes().iter().any(|n| n.contains("no covariance")),
+            "{:?}",
+            ctx.notes()
+        );
     }
 }

@@ -2,14 +2,18 @@
 
 use crate::eval::convert::load_truth;
 use crate::eval::{target_errors, true_mri_to_camera};
-use crate::register::convert::{marker_points, markers_value};
-use crate::register::{map_targets, predict_marker_tre};
+use crate::register::convert::{marker_points, markers_value, pose_covariance_from_table};
+use crate::register::figures::error_ellipses_svg;
+use crate::register::{error_bound_mm, map_targets, mapped_target_covariances, predict_marker_tre};
+use fusegraph_engine::figure::FigureData;
 use fusegraph_engine::typed::prelude::*;
-use fusegraph_engine::value::{Markers, PathValue, Transform};
+use fusegraph_engine::value::{Markers, PathValue, Table, Transform};
+use nalgebra::{Matrix3, Point3};
 
 /// Targets marked in MRI (lesions) mapped into camera (robot) space with a registration
 #[derive(Op)]
-#[op(name = "register.map_targets", version = 2)]
+// 3: each target's predicted error from the registration's covariance.
+#[op(name = "register.map_targets", version = 3)]
 pub struct MapTargets {
     /// Phantom view whose left camera is camera_left
     #[param(default = 0, min = 0)]
@@ -31,12 +35,54 @@ pub struct MapTargetsInputs {
     pub landmarks_source: Option<Arc<Markers>>,
     /// The same markers in the other frame
     pub landmarks_target: Option<Arc<Markers>>,
+    /// The registration's pose covariance (register.icp's `covariance`):
+    /// each target's predicted error, its covariance and 95 % bound
+    pub covariance: Option<Arc<Table>>,
 }
 
 #[derive(Outputs)]
 pub struct MapTargetsOutputs {
     /// The targets in the transform's other frame (camera_left), same ids
     pub targets: Markers,
+    /// Each target's predicted error in that frame, given a covariance
+    /// (otherwise no rows): `id`, `predicted_tre_mm` (RMS), `bound95_mm`
+    /// (95 % of errors are shorter), `sd_{x,y,z}_mm` and the covariance
+    /// `cov_{xx,xy,xz,yy,yz,zz}_mm2`
+    pub errors: Table,
+}
+
+/// The columns of [`MapTargetsOutputs::errors`].
+pub const ERROR_COLUMNS: [&str; 12] = [
+    "id",
+    "predicted_tre_mm",
+    "bound95_mm",
+    "sd_x_mm",
+    "sd_y_mm",
+    "sd_z_mm",
+    "cov_xx_mm2",
+    "cov_xy_mm2",
+    "cov_xz_mm2",
+    "cov_yy_mm2",
+    "cov_yz_mm2",
+    "cov_zz_mm2",
+];
+
+/// One row of the errors table for a target's covariance.
+fn error_row(id: u32, c: &Matrix3<f64>) -> [f64; 12] {
+    [
+        id as f64,
+        c.trace().max(0.0).sqrt(),
+        error_bound_mm(c, 0.95),
+        c[(0, 0)].max(0.0).sqrt(),
+        c[(1, 1)].max(0.0).sqrt(),
+        c[(2, 2)].max(0.0).sqrt(),
+        c[(0, 0)],
+        c[(0, 1)],
+        c[(0, 2)],
+        c[(1, 1)],
+        c[(1, 2)],
+        c[(2, 2)],
+    ]
 }
 
 impl RunOp for MapTargets {
@@ -49,6 +95,34 @@ impl RunOp for MapTargets {
         let (mapped, frame) =
             map_targets(&points, &targets.frame, &transform).map_err(OpError::invalid)?;
         ctx.metric("targets", mapped.len() as f64);
+        let covariances = match &inputs.covariance {
+            Some(table) => {
+                let pose = pose_covariance_from_table(table)
+                    .map_err(|e| OpError::invalid(format!("covariance: {e}")))?;
+                mapped_target_covariances(&points, &targets.frame, &transform, &pose)
+                    .map_err(OpError::invalid)?
+            }
+            None => Vec::new(),
+        };
+        let rows: Vec<[f64; 12]> = targets
+            .ids
+            .iter()
+            .zip(&covariances)
+            .map(|(&id, c)| error_row(id, c))
+            .collect();
+        for row in &rows {
+            ctx.metric(&format!("target_{}_predicted_tre_mm", row[0]), row[1]);
+            ctx.metric(&format!("target_{}_bound95_mm", row[0]), row[2]);
+        }
+        if !rows.is_empty() {
+            let mean_square = rows.iter().map(|r| r[1] * r[1]).sum::<f64>() / rows.len() as f64;
+            ctx.metric("predicted_tre_mm", mean_square.sqrt());
+            ctx.figure(
+                "error_ellipses",
+                "Each target (its id) with the ellipse 95 % of its predicted errors fall within, seen along each axis of its frame",
+                FigureData::Svg(error_ellipses_svg(&targets.ids, &mapped, &covariances, &frame)),
+            )?;
+        }
         if let (Some(a), Some(b)) = (&inputs.landmarks_source, &inputs.landmarks_target) {
             report_marker_prediction(ctx, &targets, &points, a, b)?;
         }
@@ -64,10 +138,41 @@ impl RunOp for MapTargets {
             let (mean, max) = target_errors(&true_mc, &points, &mapped);
             ctx.metric("target_error_mm", mean);
             ctx.metric("target_error_max_mm", max);
+            report_observed(ctx, &targets.ids, &points, &mapped, &rows, |p| {
+                true_mc.apply(p)
+            });
         }
+        let errors = Table::new(
+            ERROR_COLUMNS.iter().map(|c| c.to_string()).collect(),
+            rows.concat(),
+        )
+        .map_err(|e| OpError::invalid(e.0))?;
         Ok(MapTargetsOutputs {
             targets: markers_value(&mapped, targets.ids.to_vec(), &frame)?,
+            errors,
         })
+    }
+}
+
+/// Each target's observed error against the truth (`target_<id>_error_mm`)
+/// and, with predictions, how many lie within their 95 % bound
+/// (`targets_within_bound95`).
+fn report_observed(
+    ctx: &mut RunCtx,
+    ids: &[u32],
+    points: &[Point3<f64>],
+    mapped: &[Point3<f64>],
+    rows: &[[f64; 12]],
+    truth: impl Fn(&Point3<f64>) -> Point3<f64>,
+) {
+    let mut within = 0;
+    for (k, (id, (p, m))) in ids.iter().zip(points.iter().zip(mapped)).enumerate() {
+        let error = (truth(p) - m).norm();
+        ctx.metric(&format!("target_{id}_error_mm"), error);
+        within += rows.get(k).is_some_and(|r| error <= r[2]) as usize;
+    }
+    if !rows.is_empty() {
+        ctx.metric("targets_within_bound95", within as f64);
     }
 }
 
@@ -153,6 +258,7 @@ mod tests {
             truth: None,
             landmarks_source: Some(markers(&camera, camera_frame)),
             landmarks_target: Some(markers(&MRI_MARKERS, "mri_lps")),
+            covariance: None,
         }
     }
 
@@ -184,6 +290,49 @@ mod tests {
         assert!(
             e.to_string()
                 .contains("one side must be in the targets' frame `mri_lps`"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_pose_covariance_gives_each_target_its_error_bars() {
+        // A pose known to 0.1 mm along each axis and not turned at all:
+        // every target's covariance is 0.01 mm^2 I, its RMS error sqrt(0.03)
+        // mm and its 95 % bound sqrt(0.01 chi-square(3, 0.95) = 7.815) mm.
+        let mut c = nalgebra::DMatrix::zeros(6, 6);
+        (3..6).for_each(|i| c[(i, i)] = 0.01);
+        let table = crate::calib::ParameterCovariance {
+            names: crate::register::convert::POSE_COVARIANCE_NAMES
+                .iter()
+                .map(|n| n.to_string())
+                .collect(),
+            matrix: c,
+        }
+        .to_table();
+        let mut i = inputs("camera_left");
+        i.covariance = Some(Arc::new(table));
+        let mut ctx = RunCtx::new("targets", &std::env::temp_dir());
+        let out = MapTargets { view: 0 }.run(i, &mut ctx).unwrap();
+        assert_eq!(out.errors.row_count(), 2);
+        let m = ctx.metrics();
+        for id in [0, 1] {
+            let rms = m[&format!("target_{id}_predicted_tre_mm")];
+            let bound = m[&format!("target_{id}_bound95_mm")];
+            assert!((rms - 0.03f64.sqrt()).abs() < 1e-9, "{rms}");
+            assert!((bound - 0.07815f64.sqrt()).abs() < 0.005, "{bound}");
+        }
+        assert_eq!(out.errors.columns[1], "predicted_tre_mm");
+        assert!((out.errors.data[3] - 0.1).abs() < 1e-9, "sd_x_mm");
+        // A table of another shape is refused, naming the port.
+        let mut i = inputs("camera_left");
+        i.covariance = Some(Arc::new(Table::new(vec!["a".into()], vec![1.0]).unwrap()));
+        let e = MapTargets { view: 0 }
+            .run(i, &mut ctx)
+            .map(|_| ())
+            .unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("covariance: a pose covariance has the columns"),
             "{e}"
         );
     }

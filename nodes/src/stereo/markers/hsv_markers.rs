@@ -419,6 +419,25 @@ pub struct StereoMarker {
     pub point_mm: Point3<f64>,
 }
 
+/// Fewest pairs [`localisation_noise_px`] estimates the noise from.
+pub const MIN_PAIRS_FOR_NOISE: usize = 3;
+
+/// The noise of a blob centroid's coordinates (px, each coordinate alike),
+/// measured from the pairs' rectified rows: a pair's two centroids lie on one
+/// epipolar line, so their row difference is the noise of two centroids
+/// (RMS about zero, so a rectification's own misalignment counts too).
+/// `None` with fewer than [`MIN_PAIRS_FOR_NOISE`] pairs.
+pub fn localisation_noise_px(markers: &[StereoMarker]) -> Option<f64> {
+    if markers.len() < MIN_PAIRS_FOR_NOISE {
+        return None;
+    }
+    let sum: f64 = markers
+        .iter()
+        .map(|m| (m.left.y_px - m.right.y_px).powi(2))
+        .sum();
+    Some((sum / markers.len() as f64 / 2.0).sqrt())
+}
+
 /// Everything [`stereo_markers`] found.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StereoMarkers {
@@ -812,5 +831,29 @@ mod tests {
             err.contains("560 x 300") && err.contains("560 x 299"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn a_centroids_noise_is_measured_from_the_pairs_rows() {
+        // Row differences 0.2, -0.2 and 0.4 px: sqrt((0.04 + 0.04 + 0.16)
+        // / 3 / 2) = 0.2 px per centroid; two pairs are too few.
+        let blob = |y: f64| Blob {
+            x_px: 100.0,
+            y_px: y,
+            area_px: 50.0,
+            aspect: 1.0,
+            fit: 1.0,
+            image_px: (100.0, y),
+        };
+        let pair = |dy: f64| StereoMarker {
+            left: blob(50.0 + dy),
+            right: blob(50.0),
+            disparity_px: 30.0,
+            point_mm: Point3::new(0.0, 0.0, 500.0),
+        };
+        let markers = [pair(0.2), pair(-0.2), pair(0.4)];
+        let sigma = localisation_noise_px(&markers).unwrap();
+        assert!((sigma - 0.2).abs() < 1e-12, "{sigma}");
+        assert_eq!(localisation_noise_px(&markers[..2]), None);
     }
 }

@@ -3,11 +3,13 @@
 
 use super::shape_error;
 use crate::calib::rectification_of;
+use crate::calib::{ParameterCovariance, RigModel, perturbed_rigs, triangulated_covariance};
 use crate::camera::CameraModel;
+use crate::stereo::markers::MIN_PAIRS_FOR_NOISE;
 use crate::stereo::markers::detections_png;
 use crate::stereo::{
-    BlobParams, GREY_CHROMA_LEVELS, PairParams, max_chroma, stereo_markers,
-    stereo_markers_unrectified,
+    BlobParams, GREY_CHROMA_LEVELS, PairParams, StereoMarker, localisation_noise_px, max_chroma,
+    stereo_markers, stereo_markers_unrectified,
 };
 use fusegraph_engine::figure::FigureData;
 use fusegraph_engine::typed::prelude::*;
@@ -16,7 +18,8 @@ use fusegraph_engine::value::{Image, Markers, Pixels, Rectification, StereoRig, 
 /// Coloured markers found by HSV thresholds in both rectified images, paired
 /// along rows, triangulated
 #[derive(Debug, Clone, PartialEq, Op)]
-#[op(name = "stereo.hsv_markers", version = 5)]
+// 6: each marker's covariance.
+#[op(name = "stereo.hsv_markers", version = 6)]
 pub struct HsvMarkers {
     /// Hue range [min, max]; min > max wraps through 0 (default: the
     /// phantom's green)
@@ -70,6 +73,9 @@ pub struct HsvMarkersInputs {
     /// the images as taken (no resampling blur) and their centroids mapped
     /// into the rectified frame
     pub rig: Option<Arc<StereoRig>>,
+    /// The rig's parameter covariance (calib.stereo_calibrate's
+    /// `covariance`): its spread joins each marker's covariance
+    pub rig_covariance: Option<Arc<Table>>,
     /// Smallest disparity of a pair, px
     pub min_disparity: Option<f64>,
     /// Largest disparity of a pair, px
@@ -83,6 +89,79 @@ pub struct HsvMarkersOutputs {
     pub markers: Markers,
     /// One row per marker: centroids in both images, disparity and areas, px
     pub blobs: Table,
+    /// Each marker's covariance (camera_left, mm^2) from its centroids'
+    /// noise (measured from the pairs' rows) and, given, the calibration's
+    /// spread, to first order: `id`, `cov_{xx,xy,xz,yy,yz,zz}_mm2`; needs
+    /// `rig` and three or more pairs (otherwise no rows)
+    pub covariance: Table,
+}
+
+/// Columns of the `covariance` table.
+pub const MARKER_COVARIANCE_COLUMNS: [&str; 7] = [
+    "id",
+    "cov_xx_mm2",
+    "cov_xy_mm2",
+    "cov_xz_mm2",
+    "cov_yy_mm2",
+    "cov_yz_mm2",
+    "cov_zz_mm2",
+];
+
+/// Each marker's covariance row (see [`HsvMarkersOutputs::covariance`]),
+/// and the noise of a centroid; none without a rig or enough pairs.
+fn marker_covariances(
+    ctx: &mut RunCtx,
+    found: &[StereoMarker],
+    rig: Option<&StereoRig>,
+    rig_covariance: Option<&Table>,
+) -> Result<Vec<[f64; 7]>, OpError> {
+    let Some(rig) = rig else {
+        if rig_covariance.is_some() {
+            return Err(OpError::invalid(
+                "rig_covariance needs the rig: connect `rig` too",
+            ));
+        }
+        return Ok(Vec::new());
+    };
+    let Some(sigma_px) = localisation_noise_px(found) else {
+        ctx.note(format!(
+            "no marker covariances: {} pairs, and the centroids' noise is measured from {MIN_PAIRS_FOR_NOISE} or more",
+            found.len()
+        ));
+        return Ok(Vec::new());
+    };
+    ctx.metric("localisation_sd_px", sigma_px);
+    let model = RigModel::from_value(rig);
+    let perturbed = match rig_covariance.filter(|t| t.row_count() > 0) {
+        Some(t) => {
+            let c = ParameterCovariance::from_table(t)
+                .map_err(|e| OpError::invalid(format!("rig_covariance: {e}")))?;
+            perturbed_rigs(&model, &c.names, &c.sigma_directions())
+                .map_err(|e| OpError::invalid(format!("rig_covariance: {e}")))?
+        }
+        None => Vec::new(),
+    };
+    let rows: Vec<[f64; 7]> = found
+        .iter()
+        .enumerate()
+        .filter_map(|(id, m)| {
+            let c = triangulated_covariance(&model, &perturbed, &m.point_mm, sigma_px)?;
+            Some([
+                id as f64,
+                c[(0, 0)],
+                c[(0, 1)],
+                c[(0, 2)],
+                c[(1, 1)],
+                c[(1, 2)],
+                c[(2, 2)],
+            ])
+        })
+        .collect();
+    if !rows.is_empty() {
+        let mean_trace = rows.iter().map(|r| r[1] + r[4] + r[6]).sum::<f64>() / rows.len() as f64;
+        ctx.metric("marker_sd_mm", mean_trace.sqrt());
+    }
+    Ok(rows)
 }
 
 /// Columns of the `blobs` table.
@@ -184,7 +263,7 @@ impl RunOp for HsvMarkers {
         let rect = rectification_of(&rect_value);
         let left_rgb = (rgb8(&left, "left")?, left.width, left.height);
         let right_rgb = (rgb8(&right, "right")?, right.width, right.height);
-        let found = match rig {
+        let found = match &rig {
             Some(rig) => {
                 let cameras = (
                     CameraModel::from_value(&rig.left),
@@ -231,7 +310,25 @@ impl RunOp for HsvMarkers {
         }
         ctx.metric("blobs_left", found.blobs_left as f64);
         ctx.metric("blobs_right", found.blobs_right as f64);
-        Ok(HsvMarkersOutputs { markers, blobs })
+        let rows = marker_covariances(
+            ctx,
+            &found.markers,
+            rig.as_deref(),
+            inputs.rig_covariance.as_deref(),
+        )?;
+        let covariance = Table::new(
+            MARKER_COVARIANCE_COLUMNS
+                .iter()
+                .map(|c| c.to_string())
+                .collect(),
+            rows.concat(),
+        )
+        .map_err(shape_error)?;
+        Ok(HsvMarkersOutputs {
+            markers,
+            blobs,
+            covariance,
+        })
     }
 }
 
@@ -299,6 +396,7 @@ mod tests {
             right: image(30.0),
             rectification: rectification(60, 30),
             rig: None,
+            rig_covariance: None,
             min_disparity: None,
             max_disparity: None,
         }

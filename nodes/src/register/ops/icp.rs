@@ -227,7 +227,9 @@ impl RunOp for Icp {
                     "the surfaces pulled the {} landmarks from their matches: RMS {before:.2} mm \
                      at the start, {after:.2} mm after ICP. The surfaces and the markers disagree: \
                      the tissue may have moved between the scans, which a rigid registration \
-                     cannot follow; the markers' fit (the start) may be the better one",
+                     cannot follow; the markers' fit (the start) may be the better one. The \
+                     pose's covariance (the targets' error bars) assumes a rigid motion and no \
+                     longer holds",
                     a.len()
                 ));
             }
@@ -258,6 +260,7 @@ impl RunOp for Icp {
         )
         .map_err(|e| OpError::invalid(e.0))?;
         icp_figures(ctx, &trace, &sp, &tp, &init, &r.transform)?;
+        let started = std::time::Instant::now();
         let field =
             calibration_field(ctx, inputs.rig.as_deref(), inputs.rig_covariance.as_deref())?;
         let spread = pose_spread(
@@ -275,6 +278,7 @@ impl RunOp for Icp {
         )
         .map_err(OpError::invalid)?;
         report_spread(ctx, &spread);
+        ctx.metric("covariance_ms", started.elapsed().as_secs_f64() * 1e3);
         Ok(IcpOutputs {
             transform: transform_value(&r.transform, &s.frame, &t.frame),
             trace,

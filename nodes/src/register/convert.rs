@@ -56,6 +56,15 @@ pub(crate) fn pose_covariance_table(c: &Matrix6<f64>) -> Table {
     .to_table()
 }
 
+/// A pose covariance table without rows: none known.
+pub(crate) fn empty_pose_covariance() -> Table {
+    let names = POSE_COVARIANCE_NAMES
+        .iter()
+        .map(|n| n.to_string())
+        .collect();
+    Table::new(names, Vec::new()).expect("columns")
+}
+
 /// A pose covariance from such a table, checked.
 pub(crate) fn pose_covariance_from_table(t: &Table) -> Result<Matrix6<f64>, String> {
     let c = ParameterCovariance::from_table(t)?;

@@ -232,9 +232,9 @@ fn noise_covariance(
 /// it is small (see [`noise_covariance`]).
 fn cluster_score(terms: &[&Term], h_inverse: &Matrix6<f64>) -> Vector6<f64> {
     let plain = || {
-        terms
-            .iter()
-            .fold(Vector6::zeros(), |g, t| g + t.row() * (t.weight * t.residual))
+        terms.iter().fold(Vector6::zeros(), |g, t| {
+            g + t.row() * (t.weight * t.residual)
+        })
     };
     if terms.len() > SMALL_CLUSTER {
         return plain();
@@ -545,8 +545,13 @@ mod tests {
                     });
                 }
             }
-            let h_inverse = normal_matrix(terms.iter().map(|t| (t, 1.0))).try_inverse().unwrap();
-            let step = -(h_inverse * terms.iter().fold(Vector6::zeros(), |g, t| g + t.row() * t.residual));
+            let h_inverse = normal_matrix(terms.iter().map(|t| (t, 1.0)))
+                .try_inverse()
+                .unwrap();
+            let step = -(h_inverse
+                * terms
+                    .iter()
+                    .fold(Vector6::zeros(), |g, t| g + t.row() * t.residual));
             true_variance = (h_inverse * 0.25).trace();
             for t in &mut terms {
                 t.residual += t.row().dot(&step);
@@ -562,7 +567,10 @@ mod tests {
             plain += (h_inverse * meat * h_inverse).trace();
         }
         let (corrected, plain) = (corrected / 2000.0, plain / 2000.0);
-        assert!((corrected / true_variance - 1.0).abs() < 0.08, "{corrected} vs {true_variance}");
+        assert!(
+            (corrected / true_variance - 1.0).abs() < 0.08,
+            "{corrected} vs {true_variance}"
+        );
         assert!(plain < 0.8 * true_variance, "{plain} vs {true_variance}");
     }
 }

@@ -4,7 +4,8 @@ use crate::calib::{ParameterCovariance, RigModel, perturbed_rigs, triangulation_
 use crate::cloud::Nearest;
 use crate::cloud::convert::{cloud_normals, cloud_points};
 use crate::register::convert::{
-    marker_points, pose_covariance_table, transform_isometry, transform_value,
+    empty_pose_covariance, marker_points, pose_covariance_table, transform_isometry,
+    transform_value,
 };
 use crate::register::figures::icp_figures;
 use crate::register::{
@@ -169,7 +170,8 @@ pub struct IcpOutputs {
     pub trace: Table,
     /// The pose's covariance: of a small turn (`rotation_*_rad`, about the
     /// target frame's axes) and shift (`translation_*_mm`) applied after the
-    /// transform in the target frame; 6 x 6, one row per column
+    /// transform in the target frame; 6 x 6, one row per column (no rows
+    /// where the final pairs do not pin the pose)
     pub covariance: Table,
 }
 
@@ -275,14 +277,22 @@ impl RunOp for Icp {
             field
                 .as_ref()
                 .map(|f| f as &(dyn Fn(&Point3<f64>) -> Option<Vec<Vector3<f64>>> + Sync)),
-        )
-        .map_err(OpError::invalid)?;
-        report_spread(ctx, &spread);
+        );
+        let covariance = match spread {
+            Ok(spread) => {
+                report_spread(ctx, &spread);
+                pose_covariance_table(&spread.covariance)
+            }
+            Err(e) => {
+                ctx.note(format!("no pose covariance: {e}"));
+                empty_pose_covariance()
+            }
+        };
         ctx.metric("covariance_ms", started.elapsed().as_secs_f64() * 1e3);
         Ok(IcpOutputs {
             transform: transform_value(&r.transform, &s.frame, &t.frame),
             trace,
-            covariance: pose_covariance_table(&spread.covariance),
+            covariance,
         })
     }
 }

@@ -96,6 +96,10 @@ impl RunOp for MapTargets {
             map_targets(&points, &targets.frame, &transform).map_err(OpError::invalid)?;
         ctx.metric("targets", mapped.len() as f64);
         let covariances = match &inputs.covariance {
+            Some(table) if table.row_count() == 0 => {
+                ctx.note("the registration gave no covariance: no predicted target errors");
+                Vec::new()
+            }
             Some(table) => {
                 let pose = pose_covariance_from_table(table)
                     .map_err(|e| OpError::invalid(format!("covariance: {e}")))?;

@@ -17,11 +17,7 @@ import math
 import sys
 from collections import defaultdict
 
-
-def level_of(variant: str) -> str:
-    """The variant's name without its number and seed: NN_SEED_REST."""
-    parts = variant.split("_")
-    return " ".join(parts[2:]) if len(parts) > 2 else variant
+from error_bars import level_of
 
 
 def main() -> None:

@@ -31,7 +31,8 @@ pub use lm::{LeastSquares, LmReport, levenberg_marquardt};
 pub use normal_equations::{BlockNormal, DampedSystem, DenseNormal};
 pub use rectify::{StereoRectification, rectify, remap};
 pub use rig_parameters::{
-    INTRINSIC_NAMES, POSE_NAMES, ParameterCovariance, RigModel, parameter_names, perturbed_rigs,
+    COVARIANCE_COLUMNS, INTRINSIC_NAMES, POSE_NAMES, ParameterCovariance, RigModel,
+    columns_with_covariance, covariance_entries, parameter_names, perturbed_rigs,
     triangulated_covariance, triangulation_shifts,
 };
 pub use stereo::{RigSpread, StereoCalibration, calibrate_stereo};

@@ -1,6 +1,7 @@
 //! A stereo rig's estimated parameters by name, their covariance as a
 //! [`Table`], and how a point the rig triangulates moves when they are off:
-//! the calibration's uncertainty carried into 3D.
+//! the calibration's uncertainty carried into 3D (and how a point's 3 x 3
+//! covariance is written in a table).
 //!
 //! The names are those of `calib.stereo_calibrate`'s solver: each camera's
 //! estimated intrinsics (`left_fx_px`, ..., `right_k2`), then the rig's
@@ -95,6 +96,37 @@ impl RigModel {
         );
         Ok(rig)
     }
+}
+
+/// Table columns of a 3 x 3 covariance's upper triangle, mm^2.
+pub const COVARIANCE_COLUMNS: [&str; 6] = [
+    "cov_xx_mm2",
+    "cov_xy_mm2",
+    "cov_xz_mm2",
+    "cov_yy_mm2",
+    "cov_yz_mm2",
+    "cov_zz_mm2",
+];
+
+/// A 3 x 3 covariance's upper triangle, in [`COVARIANCE_COLUMNS`]' order.
+pub fn covariance_entries(c: &Matrix3<f64>) -> [f64; 6] {
+    [
+        c[(0, 0)],
+        c[(0, 1)],
+        c[(0, 2)],
+        c[(1, 1)],
+        c[(1, 2)],
+        c[(2, 2)],
+    ]
+}
+
+/// `leading` columns, then [`COVARIANCE_COLUMNS`].
+pub fn columns_with_covariance(leading: &[&str]) -> Vec<String> {
+    leading
+        .iter()
+        .chain(COVARIANCE_COLUMNS.iter())
+        .map(|c| c.to_string())
+        .collect()
 }
 
 /// The names of a stereo calibration's shared parameters: each camera's

@@ -395,10 +395,12 @@ mod tests {
 
     #[test]
     fn lamp_lists_must_fit_the_lamps() {
-        let mut c = Conditions::default();
-        c.lamp_positions_mm = Triples(vec![[0.0, 0.0, 500.0], [100.0, 0.0, 500.0]]);
-        c.lamp_kelvin = vec![3000.0, 4000.0, 5000.0];
-        c.lamp_intensities = vec![-1.0];
+        let mut c = Conditions {
+            lamp_positions_mm: Triples(vec![[0.0, 0.0, 500.0], [100.0, 0.0, 500.0]]),
+            lamp_kelvin: vec![3000.0, 4000.0, 5000.0],
+            lamp_intensities: vec![-1.0],
+            ..Default::default()
+        };
         let names: Vec<_> = c.problems().into_iter().map(|p| p.0).collect();
         assert_eq!(names, ["lamp_kelvin", "lamp_intensities"]);
         c.lamp_kelvin = vec![3000.0];

@@ -139,6 +139,27 @@ pub fn defocus(image: &[[f32; 3]], w: usize, h: usize, circle_px: &[f32]) -> Vec
     out
 }
 
+/// The standard deviation (px) of the line spread of a bright-to-dark edge
+/// along `row`: the second moment of the row's differences.
+#[cfg(test)]
+pub(crate) fn line_spread_sigma_px(row: &[f64]) -> f64 {
+    let lsf: Vec<f64> = row.windows(2).map(|p| p[0] - p[1]).collect();
+    let total: f64 = lsf.iter().sum();
+    let mean = lsf
+        .iter()
+        .enumerate()
+        .map(|(i, v)| i as f64 * v)
+        .sum::<f64>()
+        / total;
+    let var = lsf
+        .iter()
+        .enumerate()
+        .map(|(i, v)| (i as f64 - mean).powi(2) * v)
+        .sum::<f64>()
+        / total;
+    var.sqrt()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -179,25 +200,4 @@ mod tests {
         let sigma = line_spread_sigma_px(&row);
         assert!((sigma - 1.5).abs() < 0.05, "{sigma}");
     }
-}
-
-/// The standard deviation (px) of the line spread of a bright-to-dark edge
-/// along `row`: the second moment of the row's differences.
-#[cfg(test)]
-pub(crate) fn line_spread_sigma_px(row: &[f64]) -> f64 {
-    let lsf: Vec<f64> = row.windows(2).map(|p| p[0] - p[1]).collect();
-    let total: f64 = lsf.iter().sum();
-    let mean = lsf
-        .iter()
-        .enumerate()
-        .map(|(i, v)| i as f64 * v)
-        .sum::<f64>()
-        / total;
-    let var = lsf
-        .iter()
-        .enumerate()
-        .map(|(i, v)| (i as f64 - mean).powi(2) * v)
-        .sum::<f64>()
-        / total;
-    var.sqrt()
 }

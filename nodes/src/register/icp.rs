@@ -105,6 +105,9 @@ impl IcpParams {
     }
 }
 
+/// Pairs of (source index, target index, distance mm).
+pub(crate) type Pairs = Vec<(usize, usize, f64)>;
+
 /// Each moved source point's nearest target point within `max_d` (mm) as
 /// (source index, target index, distance mm), the closest `trim_ratio` of
 /// them kept, and the fraction of source points that had one (fitness).
@@ -113,7 +116,7 @@ pub(crate) fn correspondences(
     tree: &Nearest,
     max_d: f64,
     trim_ratio: f64,
-) -> Result<(Vec<(usize, usize, f64)>, f64), String> {
+) -> Result<(Pairs, f64), String> {
     let mut pairs: Vec<(usize, usize, f64)> = moved
         .par_iter()
         .enumerate()

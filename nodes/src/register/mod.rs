@@ -20,7 +20,7 @@ pub use icp::{
 pub use marker_merge::{DroppedSighting, MergeParams, MergedMarker, ViewMarkers, merge_markers};
 pub use match_markers::{MarkerMatch, match_markers};
 pub use multiview::{MarkerAnchoring, Multiview, View, poses_from_markers, register_views};
-pub use pose_spread::{PoseSpread, mapped_point_covariance, pose_spread};
+pub use pose_spread::{PoseSpread, ShiftField, mapped_point_covariance, pose_spread};
 pub use procrustes::{Similarity, umeyama};
 pub use target_error::{
     FiducialConfiguration, MarkerPrediction, error_bound_mm, expected_fre, fle_from_fre,

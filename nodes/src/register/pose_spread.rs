@@ -29,6 +29,11 @@ use nalgebra::{Isometry3, Matrix6, Point3, Vector3, Vector6};
 use rayon::prelude::*;
 use std::collections::HashMap;
 
+/// A shift field common to the source: a source-frame point's shift
+/// (source frame, mm) along each of the field's standard-deviation
+/// directions, `None` where it has none.
+pub type ShiftField<'a> = dyn Fn(&Point3<f64>) -> Option<Vec<Vector3<f64>>> + Sync + 'a;
+
 /// What a term of the final fit is a residual of.
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Origin {
@@ -102,7 +107,7 @@ pub fn pose_spread(
     p: &IcpParams,
     anchors: Option<&Anchors>,
     block_mm: f64,
-    shifts: Option<&(dyn Fn(&Point3<f64>) -> Option<Vec<Vector3<f64>>> + Sync)>,
+    shifts: Option<&ShiftField>,
 ) -> Result<PoseSpread, String> {
     let voxel = *p.scales().last().expect("at least one scale");
     let (src, max_d) = p.scale(source, voxel);
@@ -267,7 +272,7 @@ fn shift_covariance(
     source: &[Point3<f64>],
     anchors: Option<&Anchors>,
     transform: &Isometry3<f64>,
-    shifts: &(dyn Fn(&Point3<f64>) -> Option<Vec<Vector3<f64>>> + Sync),
+    shifts: &ShiftField,
 ) -> Result<Matrix6<f64>, String> {
     let surface = terms
         .iter()

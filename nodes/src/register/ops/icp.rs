@@ -9,7 +9,8 @@ use crate::register::convert::{
 };
 use crate::register::figures::icp_figures;
 use crate::register::{
-    Anchors, IcpMethod, IcpParams, Kernel, PoseSpread, icp_anchored, normals_near, pose_spread,
+    Anchors, IcpMethod, IcpParams, Kernel, PoseSpread, ShiftField, icp_anchored, normals_near,
+    pose_spread,
 };
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Markers, PointCloud, StereoRig, Table, Transform};
@@ -274,9 +275,7 @@ impl RunOp for Icp {
             &p,
             anchors.as_ref(),
             self.error_block_mm,
-            field
-                .as_ref()
-                .map(|f| f as &(dyn Fn(&Point3<f64>) -> Option<Vec<Vector3<f64>>> + Sync)),
+            field.as_ref().map(|f| f as &ShiftField),
         );
         let covariance = match spread {
             Ok(spread) => {

@@ -1,5 +1,6 @@
 //! `register.map_targets`: MRI targets into camera space.
 
+use crate::calib::{columns_with_covariance, covariance_entries};
 use crate::eval::convert::load_truth;
 use crate::eval::{target_errors, true_mri_to_camera};
 use crate::register::convert::{marker_points, markers_value, pose_covariance_from_table};
@@ -51,38 +52,28 @@ pub struct MapTargetsOutputs {
     pub errors: Table,
 }
 
-/// The columns of [`MapTargetsOutputs::errors`].
-pub const ERROR_COLUMNS: [&str; 12] = [
+/// The columns of [`MapTargetsOutputs::errors`] before the covariance's.
+const ERROR_COLUMNS: [&str; 6] = [
     "id",
     "predicted_tre_mm",
     "bound95_mm",
     "sd_x_mm",
     "sd_y_mm",
     "sd_z_mm",
-    "cov_xx_mm2",
-    "cov_xy_mm2",
-    "cov_xz_mm2",
-    "cov_yy_mm2",
-    "cov_yz_mm2",
-    "cov_zz_mm2",
 ];
 
 /// One row of the errors table for a target's covariance.
-fn error_row(id: u32, c: &Matrix3<f64>) -> [f64; 12] {
-    [
+fn error_row(id: u32, c: &Matrix3<f64>) -> Vec<f64> {
+    let mut row = vec![
         id as f64,
         c.trace().max(0.0).sqrt(),
         error_bound_mm(c, 0.95),
         c[(0, 0)].max(0.0).sqrt(),
         c[(1, 1)].max(0.0).sqrt(),
         c[(2, 2)].max(0.0).sqrt(),
-        c[(0, 0)],
-        c[(0, 1)],
-        c[(0, 2)],
-        c[(1, 1)],
-        c[(1, 2)],
-        c[(2, 2)],
-    ]
+    ];
+    row.extend(covariance_entries(c));
+    row
 }
 
 impl RunOp for MapTargets {
@@ -108,7 +99,7 @@ impl RunOp for MapTargets {
             }
             None => Vec::new(),
         };
-        let rows: Vec<[f64; 12]> = targets
+        let rows: Vec<Vec<f64>> = targets
             .ids
             .iter()
             .zip(&covariances)
@@ -146,11 +137,8 @@ impl RunOp for MapTargets {
                 true_mc.apply(p)
             });
         }
-        let errors = Table::new(
-            ERROR_COLUMNS.iter().map(|c| c.to_string()).collect(),
-            rows.concat(),
-        )
-        .map_err(|e| OpError::invalid(e.0))?;
+        let errors = Table::new(columns_with_covariance(&ERROR_COLUMNS), rows.concat())
+            .map_err(|e| OpError::invalid(e.0))?;
         Ok(MapTargetsOutputs {
             targets: markers_value(&mapped, targets.ids.to_vec(), &frame)?,
             errors,
@@ -166,7 +154,7 @@ fn report_observed(
     ids: &[u32],
     points: &[Point3<f64>],
     mapped: &[Point3<f64>],
-    rows: &[[f64; 12]],
+    rows: &[Vec<f64>],
     truth: impl Fn(&Point3<f64>) -> Point3<f64>,
 ) {
     let mut within = 0;

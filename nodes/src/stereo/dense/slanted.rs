@@ -489,7 +489,7 @@ mod tests {
                 (
                     rng.random_range(0.08..0.5f32),
                     rng.random_range(0.05..0.4f32),
-                    rng.random_range(0.0..6.28f32),
+                    rng.random_range(0.0..std::f32::consts::TAU),
                     rng.random_range(1.0..2.5f32),
                 )
             })

@@ -4,6 +4,7 @@
 use super::shape_error;
 use crate::calib::rectification_of;
 use crate::calib::{ParameterCovariance, RigModel, perturbed_rigs, triangulated_covariance};
+use crate::calib::{columns_with_covariance, covariance_entries};
 use crate::camera::CameraModel;
 use crate::stereo::markers::MIN_PAIRS_FOR_NOISE;
 use crate::stereo::markers::detections_png;
@@ -96,17 +97,6 @@ pub struct HsvMarkersOutputs {
     pub covariance: Table,
 }
 
-/// Columns of the `covariance` table.
-pub const MARKER_COVARIANCE_COLUMNS: [&str; 7] = [
-    "id",
-    "cov_xx_mm2",
-    "cov_xy_mm2",
-    "cov_xz_mm2",
-    "cov_yy_mm2",
-    "cov_yz_mm2",
-    "cov_zz_mm2",
-];
-
 /// Each marker's covariance row (see [`HsvMarkersOutputs::covariance`]),
 /// and the noise of a centroid; none without a rig or enough pairs.
 fn marker_covariances(
@@ -114,7 +104,7 @@ fn marker_covariances(
     found: &[StereoMarker],
     rig: Option<&StereoRig>,
     rig_covariance: Option<&Table>,
-) -> Result<Vec<[f64; 7]>, OpError> {
+) -> Result<Vec<Vec<f64>>, OpError> {
     let Some(rig) = rig else {
         if rig_covariance.is_some() {
             return Err(OpError::invalid(
@@ -141,20 +131,17 @@ fn marker_covariances(
         }
         None => Vec::new(),
     };
-    let rows: Vec<[f64; 7]> = found
+    let rows: Vec<Vec<f64>> = found
         .iter()
         .enumerate()
         .filter_map(|(id, m)| {
             let c = triangulated_covariance(&model, &perturbed, &m.point_mm, sigma_px)?;
-            Some([
-                id as f64,
-                c[(0, 0)],
-                c[(0, 1)],
-                c[(0, 2)],
-                c[(1, 1)],
-                c[(1, 2)],
-                c[(2, 2)],
-            ])
+            Some(
+                [id as f64]
+                    .into_iter()
+                    .chain(covariance_entries(&c))
+                    .collect(),
+            )
         })
         .collect();
     if !rows.is_empty() {
@@ -316,14 +303,8 @@ impl RunOp for HsvMarkers {
             rig.as_deref(),
             inputs.rig_covariance.as_deref(),
         )?;
-        let covariance = Table::new(
-            MARKER_COVARIANCE_COLUMNS
-                .iter()
-                .map(|c| c.to_string())
-                .collect(),
-            rows.concat(),
-        )
-        .map_err(shape_error)?;
+        let covariance =
+            Table::new(columns_with_covariance(&["id"]), rows.concat()).map_err(shape_error)?;
         Ok(HsvMarkersOutputs {
             markers,
             blobs,

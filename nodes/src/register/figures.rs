@@ -134,7 +134,7 @@ pub(crate) fn error_ellipses_svg(
     );
     let _ = write!(
         svg,
-        r#"<text x="10" y="18">Predicted 95 % error ellipse of each target ({frame}, mm); grid 0.5 mm</text>"#
+        r#"<text x="10" y="18">Predicted 95 % error ellipse of each target ({frame}, mm); grid step in each panel</text>"#
     );
     for (row, ((id, p), c)) in ids.iter().zip(points).zip(covariances).enumerate() {
         for (col, &(a, b, la, lb)) in planes.iter().enumerate() {
@@ -153,7 +153,12 @@ pub(crate) fn error_ellipses_svg(
                 r##"<rect x="{x0}" y="{y0}" width="{w}" height="{w}" fill="none" stroke="#ccc"/>"##,
                 w = PANEL - 10.0
             );
-            let step = 0.5 * scale;
+            // A grid of a round step, 25 px or more apart.
+            let step_mm = [0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0]
+                .into_iter()
+                .find(|mm| mm * scale >= 25.0)
+                .unwrap_or(20.0);
+            let step = step_mm * scale;
             let mut k = -((PANEL / 2.0 / step).floor());
             while k * step <= PANEL / 2.0 - 10.0 {
                 let (gx, gy) = (cx + k * step, cy + k * step);
@@ -181,15 +186,45 @@ pub(crate) fn error_ellipses_svg(
             );
             let _ = write!(
                 svg,
-                r#"<text x="{:.1}" y="{:.1}">target {id} ({:.1}, {:.1}, {:.1}): {la} right, {lb} down</text>"#,
+                r#"<text x="{:.1}" y="{:.1}">target {id} ({:.1}, {:.1}, {:.1}): {la} right, {lb} down</text><text x="{:.1}" y="{:.1}">grid {step_mm} mm</text>"#,
                 x0 + 4.0,
                 y0 + 14.0,
                 p.x,
                 p.y,
-                p.z
+                p.z,
+                x0 + 4.0,
+                y0 + PANEL - 16.0
             );
         }
     }
     svg.push_str("</svg>");
     svg
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_target_gets_an_ellipse_in_three_planes_sized_by_its_covariance() {
+        // Two targets, one spread 4 times wider along x: three ellipses
+        // each, and in the x-y panel the wide one's x semi-axis is the
+        // panel's 0.45 (scaled to its own largest axis), its y one a quarter.
+        let covariances = [
+            nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(0.16, 0.01, 0.01)),
+            nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(0.01, 0.01, 0.01)),
+        ];
+        let points = [Point3::new(1.0, 2.0, 500.0), Point3::new(-3.0, 0.0, 510.0)];
+        let svg = error_ellipses_svg(&[4, 9], &points, &covariances, "camera_left");
+        assert!(svg.starts_with("<svg") && svg.ends_with("</svg>"));
+        assert_eq!(svg.matches("<ellipse").count(), 6);
+        assert!(svg.contains("target 4 (1.0, 2.0, 500.0)") && svg.contains("target 9"));
+        let first = &svg[svg.find("<ellipse").unwrap()..];
+        let attribute = |name: &str| -> f64 {
+            let start = first.find(&format!("{name}=\"")).unwrap() + name.len() + 2;
+            first[start..].split('"').next().unwrap().parse().unwrap()
+        };
+        assert!((attribute("rx") - 99.0).abs() < 0.1, "{}", attribute("rx"));
+        assert!((attribute("ry") - 24.75).abs() < 0.1, "{}", attribute("ry"));
+    }
 }

@@ -95,8 +95,8 @@ const SHIFT_TERMS: usize = 8192;
 /// [`icp_anchored`](super::icp_anchored)): the final scale's pairs are taken
 /// again at it. `shifts`, given, tells for a source-frame point (a source
 /// point or a source landmark) its shift (source frame, mm) along each of
-/// the field's directions, `None` where it has none. `None` when the terms
-/// do not pin the pose.
+/// the field's directions, `None` where it has none. An error when the
+/// final pairs are too few or do not pin the pose.
 #[allow(clippy::too_many_arguments)]
 pub fn pose_spread(
     source: &[Point3<f64>],

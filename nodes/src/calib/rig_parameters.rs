@@ -233,7 +233,15 @@ pub fn triangulation_shifts(
     perturbed: &[(RigModel, RigModel)],
     p: &Point3<f64>,
 ) -> Option<Vec<Vector3<f64>>> {
-    let a = pixel_jacobian(rig, p)?;
+    shifts_with(&pixel_jacobian(rig, p)?, perturbed, p)
+}
+
+/// [`triangulation_shifts`] given the pixels' Jacobian `a` at `p`.
+fn shifts_with(
+    a: &Matrix4x3<f64>,
+    perturbed: &[(RigModel, RigModel)],
+    p: &Point3<f64>,
+) -> Option<Vec<Vector3<f64>>> {
     let solve = (a.transpose() * a).try_inverse()? * a.transpose();
     perturbed
         .iter()
@@ -276,7 +284,7 @@ pub fn triangulated_covariance(
 ) -> Option<Matrix3<f64>> {
     let a = pixel_jacobian(rig, p)?;
     let noise = (a.transpose() * a).try_inverse()? * sigma_px.powi(2);
-    let shifts = triangulation_shifts(rig, perturbed, p)?;
+    let shifts = shifts_with(&a, perturbed, p)?;
     Some(shifts.iter().fold(noise, |c, s| c + s * s.transpose()))
 }
 
@@ -330,18 +338,7 @@ mod tests {
         for _ in 0..20 {
             let u = rig.project(&p).unwrap();
             let r = nalgebra::Vector4::from_fn(|i, _| u[i] - pixels[i]);
-            let mut a = Matrix4x3::zeros();
-            for axis in 0..3 {
-                let mut s = Vector3::zeros();
-                s[axis] = 1e-4;
-                let (up, um) = (
-                    rig.project(&(p + s)).unwrap(),
-                    rig.project(&(p - s)).unwrap(),
-                );
-                for i in 0..4 {
-                    a[(i, axis)] = (up[i] - um[i]) / 2e-4;
-                }
-            }
+            let a = pixel_jacobian(rig, &p).unwrap();
             let step = (a.transpose() * a).try_inverse().unwrap() * a.transpose() * r;
             p -= step;
         }

@@ -44,13 +44,17 @@ pub(crate) const POSE_COVARIANCE_NAMES: [&str; 6] = [
     "translation_z_mm",
 ];
 
+fn pose_covariance_names() -> Vec<String> {
+    POSE_COVARIANCE_NAMES
+        .iter()
+        .map(|n| n.to_string())
+        .collect()
+}
+
 /// A pose covariance as a table (`register.icp`'s `covariance`).
 pub(crate) fn pose_covariance_table(c: &Matrix6<f64>) -> Table {
     ParameterCovariance {
-        names: POSE_COVARIANCE_NAMES
-            .iter()
-            .map(|n| n.to_string())
-            .collect(),
+        names: pose_covariance_names(),
         matrix: nalgebra::DMatrix::from_fn(6, 6, |r, k| c[(r, k)]),
     }
     .to_table()
@@ -58,11 +62,7 @@ pub(crate) fn pose_covariance_table(c: &Matrix6<f64>) -> Table {
 
 /// A pose covariance table without rows: none known.
 pub(crate) fn empty_pose_covariance() -> Table {
-    let names = POSE_COVARIANCE_NAMES
-        .iter()
-        .map(|n| n.to_string())
-        .collect();
-    Table::new(names, Vec::new()).expect("columns")
+    Table::new(pose_covariance_names(), Vec::new()).expect("columns")
 }
 
 /// A pose covariance from such a table, checked.

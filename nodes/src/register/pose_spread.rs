@@ -409,37 +409,41 @@ mod tests {
             .collect()
     }
 
+    /// ICP of `source` onto the bowl from the identity, and its spread.
+    fn fit_and_spread(
+        source: &[Point3<f64>],
+        block_mm: f64,
+        field: Option<&ShiftField>,
+    ) -> (crate::register::IcpResult, PoseSpread) {
+        let (bowl, normals, tree) = bowl();
+        let start = Isometry3::identity();
+        let r = icp(source, &bowl, Some(&normals), &tree, &start, &params()).unwrap();
+        let s = pose_spread(
+            source,
+            &bowl,
+            Some(&normals),
+            &tree,
+            &r.transform,
+            &params(),
+            None,
+            block_mm,
+            field,
+        )
+        .unwrap();
+        (r, s)
+    }
+
     /// Monte Carlo: the spread of a target mapped back through 300 ICP
     /// fits of noisy sources against what each fit's own spread predicts.
     fn check(patch: usize, block_mm: f64) -> (f64, f64, f64) {
-        let (bowl, normals, tree) = bowl();
+        let (bowl, normals, _) = bowl();
         let q = Point3::new(5.0, -10.0, -60.0);
         let mut mapped = Vec::new();
         let mut predicted = 0.0;
         let mut textbook = 0.0;
         for seed in 0..300 {
             let source = noisy(&bowl, &normals, patch, seed);
-            let r = icp(
-                &source,
-                &bowl,
-                Some(&normals),
-                &tree,
-                &Isometry3::identity(),
-                &params(),
-            )
-            .unwrap();
-            let s = pose_spread(
-                &source,
-                &bowl,
-                Some(&normals),
-                &tree,
-                &r.transform,
-                &params(),
-                None,
-                block_mm,
-                None,
-            )
-            .unwrap();
+            let (r, s) = fit_and_spread(&source, block_mm, None);
             predicted += mapped_point_covariance(&r.transform, &s.covariance, &q).trace();
             textbook += mapped_point_covariance(&r.transform, &s.independent, &q).trace();
             mapped.push(r.transform.inverse() * q);
@@ -488,29 +492,8 @@ mod tests {
     fn a_common_shift_moves_the_pose_with_it() {
         // Every source point shifted by the same (1, 0, 0.5) mm per standard
         // deviation: ICP follows it in full, so the target moves by as much.
-        let (bowl, normals, tree) = bowl();
-        let r = icp(
-            &bowl,
-            &bowl,
-            Some(&normals),
-            &tree,
-            &Isometry3::identity(),
-            &params(),
-        )
-        .unwrap();
         let field = |_: &Point3<f64>| Some(vec![Vector3::new(1.0, 0.0, 0.5)]);
-        let s = pose_spread(
-            &bowl,
-            &bowl,
-            Some(&normals),
-            &tree,
-            &r.transform,
-            &params(),
-            None,
-            10.0,
-            Some(&field),
-        )
-        .unwrap();
+        let (r, s) = fit_and_spread(&bowl().0, 10.0, Some(&field));
         let c = mapped_point_covariance(&r.transform, &s.shift, &Point3::new(3.0, 4.0, -50.0));
         let expected = nalgebra::Matrix3::new(1.0, 0.0, 0.5, 0.0, 0.0, 0.0, 0.5, 0.0, 0.25);
         assert!((c - expected).amax() < 1e-3, "{c}");

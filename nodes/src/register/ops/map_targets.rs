@@ -105,9 +105,9 @@ impl RunOp for MapTargets {
             .zip(&covariances)
             .map(|(&id, c)| error_row(id, c))
             .collect();
-        for row in &rows {
-            ctx.metric(&format!("target_{}_predicted_tre_mm", row[0]), row[1]);
-            ctx.metric(&format!("target_{}_bound95_mm", row[0]), row[2]);
+        for (id, row) in targets.ids.iter().zip(&rows) {
+            ctx.metric(&format!("target_{id}_predicted_tre_mm"), row[1]);
+            ctx.metric(&format!("target_{id}_bound95_mm"), row[2]);
         }
         if !rows.is_empty() {
             let mean_square = rows.iter().map(|r| r[1] * r[1]).sum::<f64>() / rows.len() as f64;
@@ -291,16 +291,10 @@ mod tests {
         // A pose known to 0.1 mm along each axis and not turned at all:
         // every target's covariance is 0.01 mm^2 I, its RMS error sqrt(0.03)
         // mm and its 95 % bound sqrt(0.01 chi-square(3, 0.95) = 7.815) mm.
-        let mut c = nalgebra::DMatrix::zeros(6, 6);
-        (3..6).for_each(|i| c[(i, i)] = 0.01);
-        let table = crate::calib::ParameterCovariance {
-            names: crate::register::convert::POSE_COVARIANCE_NAMES
-                .iter()
-                .map(|n| n.to_string())
-                .collect(),
-            matrix: c,
-        }
-        .to_table();
+        let sd2 = nalgebra::Vector6::new(0.0, 0.0, 0.0, 0.01, 0.01, 0.01);
+        let table = crate::register::convert::pose_covariance_table(
+            &nalgebra::Matrix6::from_diagonal(&sd2),
+        );
         let mut i = inputs("camera_left");
         i.covariance = Some(Arc::new(table));
         let mut ctx = RunCtx::new("targets", &std::env::temp_dir());

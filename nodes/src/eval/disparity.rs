@@ -17,6 +17,12 @@ pub struct DisparityErrors {
     pub bad_pct: Vec<f64>,
     /// Mean absolute error over valid estimates, px (NaN if none).
     pub mae_px: f64,
+    /// Mean signed error (estimate - truth) over valid estimates, px (NaN if
+    /// none): the map's bias, which moves a surface along the line of sight.
+    pub mean_signed_px: f64,
+    /// Median signed error over valid estimates, px (NaN if none): the bias
+    /// of the bulk of the map, blind to mismatches.
+    pub median_signed_px: f64,
     /// Root mean square error over valid estimates, px (NaN if none).
     pub rmse_px: f64,
     /// Valid estimates among evaluated pixels, %.
@@ -49,7 +55,8 @@ pub fn disparity_errors(
     }
     let (mut evaluated, mut valid) = (0usize, 0usize);
     let mut bad = vec![0usize; thresholds_px.len()];
-    let (mut sum_abs, mut sum_sq) = (0.0f64, 0.0f64);
+    let (mut sum_signed, mut sum_abs, mut sum_sq) = (0.0f64, 0.0f64, 0.0f64);
+    let mut signed_errors = Vec::new();
     for (i, (&d, &t)) in estimate.iter().zip(truth).enumerate() {
         if !(t.is_finite() && t != 0.0) || mask.is_some_and(|m| !m[i]) {
             continue;
@@ -60,7 +67,10 @@ pub fn disparity_errors(
             continue;
         }
         valid += 1;
-        let e = (d as f64 - t as f64).abs();
+        let signed = d as f64 - t as f64;
+        let e = signed.abs();
+        sum_signed += signed;
+        signed_errors.push(signed);
         sum_abs += e;
         sum_sq += e * e;
         for (b, &th) in bad.iter_mut().zip(thresholds_px) {
@@ -70,11 +80,18 @@ pub fn disparity_errors(
         }
     }
     let pct = |n: usize| 100.0 * n as f64 / evaluated as f64;
+    signed_errors.sort_by(f64::total_cmp);
+    let median_signed_px = signed_errors
+        .get(signed_errors.len() / 2)
+        .copied()
+        .unwrap_or(f64::NAN);
     Ok(DisparityErrors {
         evaluated,
         valid,
         bad_pct: bad.into_iter().map(pct).collect(),
         mae_px: sum_abs / valid as f64,
+        mean_signed_px: sum_signed / valid as f64,
+        median_signed_px,
         rmse_px: (sum_sq / valid as f64).sqrt(),
         coverage_pct: pct(valid),
     })
@@ -105,6 +122,10 @@ mod tests {
             assert!((a - b).abs() < 1e-12, "{:?} vs {expected:?}", e.bad_pct);
         }
         assert!((e.mae_px - 10.75 / 5.0).abs() < 1e-12);
+        // Signed: 0.25 + 1.5 + 3 + 0 - 6.
+        assert!((e.mean_signed_px - (-1.25 / 5.0)).abs() < 1e-12);
+        // Sorted: -6, 0, 0.25, 1.5, 3.
+        assert_eq!(e.median_signed_px, 0.25);
         let ms = (0.0625 + 2.25 + 9.0 + 0.0 + 36.0) / 5.0;
         assert!((e.rmse_px - f64::sqrt(ms)).abs() < 1e-12);
         assert!((e.coverage_pct - 100.0 * 5.0 / 6.0).abs() < 1e-12);

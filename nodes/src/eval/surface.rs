@@ -8,6 +8,13 @@ use nalgebra::{Isometry3, Point3, Vector3};
 pub struct SurfaceDistances {
     /// Mean distance.
     pub mean_mm: f64,
+    /// Mean signed distance, positive outside the skin (along its outward
+    /// normal): a reconstruction's common offset (bias), which its mean
+    /// distance mixes with its noise.
+    pub mean_signed_mm: f64,
+    /// Median signed distance: the offset of the bulk of the surface, blind
+    /// to stray points.
+    pub median_signed_mm: f64,
     /// Root mean square distance.
     pub rms_mm: f64,
     /// 95th percentile.
@@ -62,23 +69,29 @@ pub fn skin_distances(
                 .all(|l| (p - Point3::from(l.center_mm)).norm() > l.radius_mm + marker_margin_mm)
         })
         .map(|(p, field)| {
-            let d = shape.distance_to_ellipsoid(&p);
+            let d = shape.signed_distance_to_ellipsoid(&p);
             let stretch = field.map_or(1.0, |f| {
                 let n = shape.skin_normal(&p);
                 1.0 / f.moved_normal_stretch(&p, &n)
             });
             (d * stretch, p.z)
         })
-        .filter(|&(skin, above_base)| skin <= above_base)
+        .filter(|&(skin, above_base)| skin.abs() <= above_base)
         .map(|(skin, _)| skin)
         .collect();
     if d.is_empty() {
         return None;
     }
-    d.sort_by(f64::total_cmp);
     let n = d.len() as f64;
+    let mean_signed_mm = d.iter().sum::<f64>() / n;
+    d.sort_by(f64::total_cmp);
+    let median_signed_mm = d[d.len() / 2];
+    d.iter_mut().for_each(|x| *x = x.abs());
+    d.sort_by(f64::total_cmp);
     Some(SurfaceDistances {
         mean_mm: d.iter().sum::<f64>() / n,
+        mean_signed_mm,
+        median_signed_mm,
         rms_mm: (d.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
         p95_mm: d[((0.95 * (n - 1.0)).round() as usize).min(d.len() - 1)],
         max_mm: *d.last().expect("non-empty"),

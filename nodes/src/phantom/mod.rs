@@ -48,6 +48,7 @@ pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.add::<ops::CameraSurface>()?;
     registry.add::<ops::RigPose>()?;
     registry.add::<ops::Lesions>()?;
+    registry.add::<ops::TrueRig>()?;
     registry.add::<ops::TrueDisparity>()?;
     Ok(())
 }

@@ -431,6 +431,17 @@ impl PhantomShape {
             .sqrt()
     }
 
+    /// Signed distance (mm) from `p` (phantom frame) to the ellipsoid:
+    /// positive outside (along the outward normal), negative inside.
+    pub fn signed_distance_to_ellipsoid(&self, p: &Point3<f64>) -> f64 {
+        let d = self.distance_to_ellipsoid(p);
+        if self.to_unit_sphere(p).norm_squared() < 1.0 {
+            -d
+        } else {
+            d
+        }
+    }
+
     /// Distance (mm) from an inside point to the nearest point of the dome's
     /// skin, by sampling directions (an upper bound, exact to ~0.1 mm; used only
     /// to check lesion placement).

@@ -19,8 +19,12 @@ pub use icp::{
 };
 pub use marker_merge::{DroppedSighting, MergeParams, MergedMarker, ViewMarkers, merge_markers};
 pub use match_markers::{MarkerMatch, match_markers};
-pub use multiview::{MarkerAnchoring, Multiview, View, poses_from_markers, register_views};
-pub use pose_spread::{PoseSpread, ShiftField, mapped_point_covariance, pose_spread};
+pub use multiview::{
+    MarkerAnchoring, Multiview, View, first_view_spread, poses_from_markers, register_views,
+};
+pub use pose_spread::{
+    PoseSpread, ShiftField, carried_pose_covariance, mapped_point_covariance, pose_spread,
+};
 pub use procrustes::{Similarity, umeyama};
 pub use target_error::{
     FiducialConfiguration, MarkerPrediction, error_bound_mm, expected_fre, fle_from_fre,

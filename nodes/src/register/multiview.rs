@@ -11,8 +11,9 @@
 //! them do: the merged markers then come apart).
 
 use super::icp::{Anchors, IcpParams, icp, icp_anchored};
+use super::pose_spread;
 use crate::cloud::Nearest;
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Matrix6, Point3, Vector3};
 
 /// One view: its points and normals in its own (camera) frame.
 #[derive(Debug, Clone)]
@@ -201,12 +202,7 @@ pub fn register_views(
     let mut view_rmse_mm = vec![0.0; n];
     for _ in 0..rounds.max(1) {
         for i in 1..n {
-            let (mut pts, mut nrm) = (Vec::new(), Vec::new());
-            for (k, v) in views.iter().enumerate().filter(|(k, _)| *k != i) {
-                let (a, b) = to_world(v, &poses[k]);
-                pts.extend(a);
-                nrm.extend(b);
-            }
+            let (pts, nrm) = others(views, &poses, i);
             let tree = Nearest::new(&pts).ok_or("no points")?;
             let anchors = anchoring.and_then(|a| adjustment_anchors(a, i, &poses));
             let r = icp_anchored(
@@ -224,12 +220,7 @@ pub fn register_views(
         }
     }
     // View 0's fit against the adjusted others, for the report.
-    let (mut pts, mut nrm) = (Vec::new(), Vec::new());
-    for (k, v) in views.iter().enumerate().skip(1) {
-        let (a, b) = to_world(v, &poses[k]);
-        pts.extend(a);
-        nrm.extend(b);
-    }
+    let (pts, nrm) = others(views, &poses, 0);
     let tree = Nearest::new(&pts).ok_or("no points")?;
     let fixed = IcpParams {
         max_iterations: 1,
@@ -243,6 +234,56 @@ pub fn register_views(
         pairwise_rmse_mm,
         view_rmse_mm,
     })
+}
+
+/// The points and normals of every view but `skip`, at `poses` (world).
+fn others(
+    views: &[View],
+    poses: &[Isometry3<f64>],
+    skip: usize,
+) -> (Vec<Point3<f64>>, Vec<Vector3<f64>>) {
+    let (mut pts, mut nrm) = (Vec::new(), Vec::new());
+    for (k, v) in views.iter().enumerate().filter(|(k, _)| *k != skip) {
+        let (a, b) = to_world(v, &poses[k]);
+        pts.extend(a);
+        nrm.extend(b);
+    }
+    (pts, nrm)
+}
+
+/// How well the views' own data pin the first view against the others, after
+/// [`register_views`]: the covariance (rad, mm; rotation first; world
+/// frame, applied after `poses[0]`) of view 0's pose fitted onto the others
+/// at their adjusted poses, with its markers as in the adjustment: from the
+/// residuals block by block ([`pose_spread`] over `block_mm` cubes).
+///
+/// View 0 holds the frame: the adjustment moves every other view onto it, so
+/// where its own data sit off the truth (noise, a matching bias along its
+/// lines of sight, its markers' depth errors), the whole merged set follows
+/// them. That common motion does not show in a later registration's
+/// residuals; this is its spread. An error when the pairs do not pin it.
+pub fn first_view_spread(
+    views: &[View],
+    poses: &[Isometry3<f64>],
+    p: &IcpParams,
+    anchoring: Option<&MarkerAnchoring>,
+    block_mm: f64,
+) -> Result<Matrix6<f64>, String> {
+    let (pts, nrm) = others(views, poses, 0);
+    let tree = Nearest::new(&pts).ok_or("the other views have no points")?;
+    let anchors = anchoring.and_then(|a| adjustment_anchors(a, 0, poses));
+    let spread = pose_spread(
+        &views[0].points,
+        &pts,
+        Some(&nrm),
+        &tree,
+        &poses[0],
+        p,
+        anchors.as_ref(),
+        block_mm,
+        None,
+    )?;
+    Ok(spread.covariance)
 }
 
 /// Rough view -> first-view poses from the markers alone, for a rig with no
@@ -304,6 +345,78 @@ mod anchor_tests {
         let view1 = adjustment_anchors(&anchoring, 1, &poses).unwrap();
         assert_eq!(view1.source.len(), 4);
         assert_eq!(view1.target[3], at(30.0), "the nearest sighting");
+    }
+}
+
+#[cfg(test)]
+mod spread_tests {
+    use super::*;
+    use crate::register::{IcpMethod, Kernel};
+    use nalgebra::Vector6;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+
+    /// A small motion (turn, shift; rad, mm) close to `pose`.
+    fn small_motion(pose: &Isometry3<f64>) -> Vector6<f64> {
+        let (w, t) = (pose.rotation.scaled_axis(), pose.translation.vector);
+        Vector6::new(w.x, w.y, w.z, t.x, t.y, t.z)
+    }
+
+    #[test]
+    fn the_merged_set_follows_the_first_views_noise_as_its_spread_says() {
+        // View 0 is the bowl with independent noise along its normals, view 1
+        // the bowl itself; both start at the truth. The adjustment moves view
+        // 1 onto view 0's data, so its pose scatters over draws as view 0's
+        // spread predicts.
+        let (points, normals) = super::super::pose_spread::uneven_bowl(60, 1.5);
+        let p = IcpParams {
+            method: IcpMethod::PointToPlane,
+            max_distance_mm: 5.0,
+            trim_ratio: 1.0,
+            kernel: Kernel::None,
+            max_iterations: 30,
+            tolerance: 1e-9,
+            voxel_sizes_mm: vec![],
+        };
+        let noise = Normal::new(0.0, 0.3).unwrap();
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        let rough = vec![Isometry3::identity(); 2];
+        let draws = 150;
+        let (mut observed, mut predicted) =
+            (nalgebra::Matrix6::zeros(), nalgebra::Matrix6::zeros());
+        for _ in 0..draws {
+            let noisy: Vec<Point3<f64>> = points
+                .iter()
+                .zip(&normals)
+                .map(|(x, n)| x + n * noise.sample(&mut rng))
+                .collect();
+            let views = vec![
+                View {
+                    points: noisy,
+                    normals: normals.clone(),
+                },
+                View {
+                    points: points.clone(),
+                    normals: normals.clone(),
+                },
+            ];
+            let m = register_views(&views, &rough, &p, 1, None).unwrap();
+            let e = small_motion(&m.poses[1]);
+            observed += e * e.transpose() / draws as f64;
+            predicted += first_view_spread(&views, &m.poses, &p, None, 0.0).unwrap() / draws as f64;
+        }
+        let sd = |c: &nalgebra::Matrix6<f64>, from: usize| {
+            (from..from + 3).map(|i| c[(i, i)]).sum::<f64>().sqrt()
+        };
+        for (part, from) in [("turn", 0), ("shift", 3)] {
+            let ratio = sd(&observed, from) / sd(&predicted, from);
+            assert!(
+                (0.8..1.25).contains(&ratio),
+                "{part}: observed {:.3e}, predicted {:.3e}",
+                sd(&observed, from),
+                sd(&predicted, from)
+            );
+        }
     }
 }
 

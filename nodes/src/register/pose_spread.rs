@@ -323,6 +323,24 @@ fn shift_covariance(
     }))
 }
 
+/// A pose covariance carried through `iso`: the covariance, in the frame
+/// `iso` maps to, of a small turn and shift (rad, mm; rotation first) that
+/// has covariance `covariance` in the frame `iso` maps from. A motion
+/// `p -> p + w x p + t` before `iso` is `q -> q + (R w) x q + (t_iso x R w +
+/// R t)` after it (the adjoint of `iso`). So a source whose own frame is
+/// known to within `covariance` gives the registration that follows it the
+/// carried covariance.
+pub fn carried_pose_covariance(iso: &Isometry3<f64>, covariance: &Matrix6<f64>) -> Matrix6<f64> {
+    let r = iso.rotation.to_rotation_matrix().into_inner();
+    let mut adjoint = Matrix6::zeros();
+    adjoint.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
+    adjoint.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
+    adjoint
+        .fixed_view_mut::<3, 3>(3, 0)
+        .copy_from(&(iso.translation.vector.cross_matrix() * r));
+    adjoint * covariance * adjoint.transpose()
+}
+
 /// The covariance (mm^2, in the frame `transform` maps from) of where a
 /// target-frame point `target` maps back through the inverse of
 /// `transform` when the pose has covariance `covariance` (see
@@ -344,6 +362,29 @@ pub fn mapped_point_covariance(
     m * covariance * m.transpose()
 }
 
+/// A test surface that pins every turn and shift: an uneven quadratic bowl
+/// of `side` x `side` points `spacing_mm` apart (centred on the origin),
+/// with its unit normals.
+#[cfg(test)]
+pub(crate) fn uneven_bowl(side: usize, spacing_mm: f64) -> (Vec<Point3<f64>>, Vec<Vector3<f64>>) {
+    let (mut points, mut normals) = (Vec::new(), Vec::new());
+    let half = 0.5 * side as f64 * spacing_mm;
+    for i in 0..side {
+        for j in 0..side {
+            let (x, y) = (spacing_mm * i as f64 - half, spacing_mm * j as f64 - half);
+            let z = (x * x + 0.6 * y * y) / 120.0 + 0.0002 * x * y * y;
+            let n = Vector3::new(
+                -(2.0 * x) / 120.0 - 0.0002 * y * y,
+                -(1.2 * y) / 120.0 - 0.0004 * x * y,
+                1.0,
+            );
+            points.push(Point3::new(x, y, z));
+            normals.push(n.normalize());
+        }
+    }
+    (points, normals)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -351,24 +392,44 @@ mod tests {
     use rand::SeedableRng;
     use rand_distr::{Distribution, Normal};
 
+    #[test]
+    fn a_carried_covariance_moves_points_as_the_motion_before_it_does() {
+        let iso = Isometry3::new(
+            Vector3::new(30.0, -12.0, 480.0),
+            Vector3::new(0.3, -0.5, 0.2),
+        );
+        let (w, t) = (
+            Vector3::new(2e-5, -1e-5, 3e-5),
+            Vector3::new(0.01, 0.02, -0.015),
+        );
+        let delta = Vector6::new(w.x, w.y, w.z, t.x, t.y, t.z);
+        let carried = carried_pose_covariance(&iso, &(delta * delta.transpose()));
+        for p in [
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(40.0, -25.0, 10.0),
+            Point3::new(-60.0, 35.0, 70.0),
+        ] {
+            // The point moved before iso, against the carried motion after it.
+            let shift = iso * (p + w.cross(&p.coords) + t) - iso * p;
+            let q = (iso * p).coords;
+            let mut j = nalgebra::Matrix3x6::zeros();
+            j.fixed_view_mut::<3, 3>(0, 0)
+                .copy_from(&(-q.cross_matrix()));
+            j.fixed_view_mut::<3, 3>(0, 3)
+                .copy_from(&nalgebra::Matrix3::identity());
+            let predicted = j * carried * j.transpose();
+            let expected = shift * shift.transpose();
+            assert!(
+                (predicted - expected).norm() < 1e-3 * expected.norm(),
+                "{predicted} vs {expected}"
+            );
+        }
+    }
+
     /// A gently curved patch (a quadratic bowl over 80 x 80 mm) with its
     /// normals, and its tree.
     fn bowl() -> (Vec<Point3<f64>>, Vec<Vector3<f64>>, Nearest) {
-        let mut points = Vec::new();
-        let mut normals = Vec::new();
-        for i in 0..80 {
-            for j in 0..80 {
-                let (x, y) = (i as f64 - 40.0, j as f64 - 40.0);
-                let z = (x * x + 0.6 * y * y) / 120.0 + 0.002 * x * y * y / 10.0;
-                let n = Vector3::new(
-                    -(2.0 * x) / 120.0 - 0.0002 * y * y,
-                    -(1.2 * y) / 120.0 - 0.0004 * x * y,
-                    1.0,
-                );
-                points.push(Point3::new(x, y, z));
-                normals.push(n.normalize());
-            }
-        }
+        let (points, normals) = uneven_bowl(80, 1.0);
         let tree = Nearest::new(&points).unwrap();
         (points, normals, tree)
     }

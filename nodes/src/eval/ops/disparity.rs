@@ -6,7 +6,7 @@ use fusegraph_engine::value::{Disparity, Image};
 
 /// A disparity map against the true one: bad-N % (invalid counted bad), MAE, RMSE, coverage
 #[derive(Op)]
-#[op(name = "eval.disparity", version = 1)]
+#[op(name = "eval.disparity", version = 2)]
 pub struct EvalDisparity {
     /// Error thresholds of the bad_N_pct metrics
     #[param(default = [0.5, 1.0, 2.0, 4.0], unit = "px", min = 0.0)]
@@ -71,6 +71,8 @@ impl RunOp for EvalDisparity {
             ctx.metric(&bad_metric_name(t), pct);
         }
         ctx.metric("mae_px", e.mae_px);
+        ctx.metric("mean_signed_px", e.mean_signed_px);
+        ctx.metric("median_signed_px", e.median_signed_px);
         ctx.metric("rmse_px", e.rmse_px);
         ctx.metric("coverage_pct", e.coverage_pct);
         ctx.metric("evaluated", e.evaluated as f64);

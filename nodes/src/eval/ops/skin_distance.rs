@@ -8,7 +8,7 @@ use fusegraph_engine::value::{Mesh, PathValue};
 
 /// Distances from a surface's vertices to the phantom's true skin
 #[derive(Op)]
-#[op(name = "eval.skin_distance", version = 3)]
+#[op(name = "eval.skin_distance", version = 4)]
 pub struct EvalSkinDistance {
     /// Skip vertices this close to a marker
     #[param(default = 2.0, unit = "mm", min = 0.0)]
@@ -64,6 +64,8 @@ impl RunOp for EvalSkinDistance {
         )
         .ok_or_else(|| OpError::invalid("no mesh vertex lies on the skin"))?;
         ctx.metric("mean_mm", d.mean_mm);
+        ctx.metric("mean_signed_mm", d.mean_signed_mm);
+        ctx.metric("median_signed_mm", d.median_signed_mm);
         ctx.metric("rms_mm", d.rms_mm);
         ctx.metric("p95_mm", d.p95_mm);
         ctx.metric("max_mm", d.max_mm);

@@ -8,7 +8,7 @@ use fusegraph_engine::value::{PathValue, PointCloud};
 
 /// Distances from a point cloud to the phantom's true skin (mean, 95th percentile, max)
 #[derive(Op)]
-#[op(name = "eval.surface", version = 2)]
+#[op(name = "eval.surface", version = 3)]
 pub struct EvalSurface {
     /// Which view's left camera, for a cloud in camera_left
     #[param(default = 0, min = 0)]
@@ -67,6 +67,8 @@ impl RunOp for EvalSurface {
             ))
         })?;
         ctx.metric("mean_mm", d.mean_mm);
+        ctx.metric("mean_signed_mm", d.mean_signed_mm);
+        ctx.metric("median_signed_mm", d.median_signed_mm);
         ctx.metric("rms_mm", d.rms_mm);
         ctx.metric("p95_mm", d.p95_mm);
         ctx.metric("max_mm", d.max_mm);
@@ -86,7 +88,7 @@ mod tests {
 
     /// Skin points of the truth well away from markers, lesions and the base,
     /// each moved a known distance along the skin normal, in world (mm); and
-    /// those distances.
+    /// those distances, signed (positive outwards).
     fn offset_skin(truth: &GroundTruth) -> (Vec<Point3<f64>>, Vec<f64>) {
         let to_world = isometry_from_matrix(&truth.phantom_to_world);
         let shape = &truth.shape;
@@ -106,10 +108,10 @@ mod tests {
                 continue;
             }
             let i = points.len();
-            let delta = (0.2 + 0.2 * (i % 5) as f64) * if i % 2 == 0 { 1.0 } else { -1.0 };
+            let delta = (0.2 + 0.2 * (i % 5) as f64) * if i % 3 == 0 { -1.0 } else { 1.0 };
             let normal = to_world.rotation * shape.skin_normal(&p);
             points.push(Point3::from(*x) + normal * delta);
-            offsets.push(delta.abs());
+            offsets.push(delta);
         }
         (points, offsets)
     }
@@ -148,6 +150,11 @@ mod tests {
         let (mut points, offsets) = offset_skin(&truth);
         assert!(offsets.len() > 100, "{}", offsets.len());
         let n = offsets.len() as f64;
+        let mean_signed = offsets.iter().sum::<f64>() / n;
+        let mut signed = offsets.clone();
+        signed.sort_by(f64::total_cmp);
+        let median_signed = signed[signed.len() / 2];
+        let offsets: Vec<f64> = offsets.iter().map(|d| d.abs()).collect();
         let mean = offsets.iter().sum::<f64>() / n;
         let rms = (offsets.iter().map(|d| d * d).sum::<f64>() / n).sqrt();
         let mut sorted = offsets.clone();
@@ -171,6 +178,8 @@ mod tests {
             assert_eq!(m["points"], n + truth.markers.len() as f64);
             for (name, expected) in [
                 ("mean_mm", mean),
+                ("mean_signed_mm", mean_signed),
+                ("median_signed_mm", median_signed),
                 ("rms_mm", rms),
                 ("p95_mm", p95),
                 ("max_mm", 1.0),

@@ -5,12 +5,14 @@ mod generate;
 mod lesions;
 mod rig_pose;
 mod true_disparity;
+mod true_rig;
 
 pub use camera_surface::{CameraSurface, CameraSurfaceOutputs};
 pub use generate::{Generate, GenerateInputs, GenerateOutputs};
 pub use lesions::{Lesions, LesionsOutputs};
 pub use rig_pose::{RigPose, RigPoseOutputs};
 pub use true_disparity::{TrueDisparity, TrueDisparityInputs, TrueDisparityOutputs};
+pub use true_rig::{TrueRig, TrueRigOutputs};
 
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{PathValue, ValueError};

@@ -4,13 +4,13 @@ use crate::calib::{ParameterCovariance, RigModel, perturbed_rigs, triangulation_
 use crate::cloud::Nearest;
 use crate::cloud::convert::{cloud_normals, cloud_points};
 use crate::register::convert::{
-    empty_pose_covariance, marker_points, pose_covariance_table, transform_isometry,
-    transform_value,
+    empty_pose_covariance, marker_points, pose_covariance_from_table, pose_covariance_table,
+    transform_isometry, transform_value,
 };
 use crate::register::figures::icp_figures;
 use crate::register::{
-    Anchors, IcpMethod, IcpParams, Kernel, PoseSpread, ShiftField, icp_anchored, normals_near,
-    pose_spread,
+    Anchors, IcpMethod, IcpParams, Kernel, PoseSpread, ShiftField, carried_pose_covariance,
+    icp_anchored, normals_near, pose_spread,
 };
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Markers, PointCloud, StereoRig, Table, Transform};
@@ -19,7 +19,8 @@ use nalgebra::{Isometry3, Matrix6, Point3, Vector3};
 /// Iterative closest point: source cloud onto target cloud
 #[derive(Op)]
 // 4: the pose's covariance (surface noise in blocks, and the rig's calibration).
-#[op(name = "register.icp", version = 4)]
+// 5: and the source frame's own spread (`source_covariance`).
+#[op(name = "register.icp", version = 5)]
 pub struct Icp {
     /// Error metric
     #[param(default = IcpMethod::PointToPlane)]
@@ -120,6 +121,11 @@ pub struct IcpInputs {
     pub rig: Option<Arc<StereoRig>>,
     /// The rig's parameter covariance (calib.stereo_calibrate's `covariance`)
     pub rig_covariance: Option<Arc<Table>>,
+    /// How well the source's own frame is known (register.multiview's
+    /// `covariance`: a small turn and shift of the whole source, points and
+    /// landmarks together, in its frame); the pose follows it, so it joins
+    /// the pose's covariance
+    pub source_covariance: Option<Arc<Table>>,
 }
 
 /// Landmarks in the source frame and their matches in the target frame.
@@ -277,10 +283,25 @@ impl RunOp for Icp {
             self.error_block_mm,
             field.as_ref().map(|f| f as &ShiftField),
         );
+        let frame_spread = match inputs.source_covariance.as_deref() {
+            Some(t) if t.row_count() == 0 => {
+                ctx.note(
+                    "the source's frame has no covariance (its views did not pin it): its spread \
+                     is not in the pose's covariance",
+                );
+                Matrix6::zeros()
+            }
+            Some(t) => carried_pose_covariance(
+                &r.transform,
+                &pose_covariance_from_table(t)
+                    .map_err(|e| OpError::invalid(format!("source_covariance: {e}")))?,
+            ),
+            None => Matrix6::zeros(),
+        };
         let covariance = match spread {
             Ok(spread) => {
-                report_spread(ctx, &spread);
-                pose_covariance_table(&spread.covariance)
+                report_spread(ctx, &spread, &frame_spread);
+                pose_covariance_table(&(spread.covariance + frame_spread))
             }
             Err(e) => {
                 ctx.note(format!("no pose covariance: {e}"));
@@ -330,12 +351,15 @@ fn calibration_field(
     }))
 }
 
-/// The pose's standard deviations and what they come from, as metrics.
-fn report_spread(ctx: &mut RunCtx, s: &PoseSpread) {
+/// The pose's standard deviations and what they come from, as metrics:
+/// the fit's own spread `s` and the source frame's carried into it.
+fn report_spread(ctx: &mut RunCtx, s: &PoseSpread, frame: &Matrix6<f64>) {
     let rotation = |c: &Matrix6<f64>| (0..3).map(|i| c[(i, i)]).sum::<f64>().max(0.0).sqrt();
     let translation = |c: &Matrix6<f64>| (3..6).map(|i| c[(i, i)]).sum::<f64>().max(0.0).sqrt();
-    ctx.metric("rotation_sd_deg", rotation(&s.covariance).to_degrees());
-    ctx.metric("translation_sd_mm", translation(&s.covariance));
+    let total = s.covariance + frame;
+    ctx.metric("rotation_sd_deg", rotation(&total).to_degrees());
+    ctx.metric("translation_sd_mm", translation(&total));
+    ctx.metric("source_frame_translation_sd_mm", translation(frame));
     ctx.metric("noise_translation_sd_mm", translation(&s.noise));
     ctx.metric("independent_translation_sd_mm", translation(&s.independent));
     ctx.metric("calibration_translation_sd_mm", translation(&s.shift));
@@ -364,6 +388,7 @@ mod tests {
             landmarks_target: b,
             rig: None,
             rig_covariance: None,
+            source_covariance: None,
         }
     }
 
@@ -380,6 +405,49 @@ mod tests {
         assert!(err(inputs(Some(two("camera_left")), None)).contains("or neither"));
         assert!(err(inputs(Some(two("world")), Some(two("mri_lps")))).contains("`world`"));
         assert!(err(inputs(Some(two("camera_left")), Some(one))).contains("pair in order"));
+    }
+
+    /// An uneven bowl (18 x 18 points, 4 mm apart) with its normals, as a
+    /// cloud in `frame`.
+    fn bowl(frame: &str) -> Arc<PointCloud> {
+        let (mut points, mut normals) = (Vec::new(), Vec::new());
+        for i in 0..18 {
+            for j in 0..18 {
+                let (x, y) = (4.0 * i as f32 - 34.0, 4.0 * j as f32 - 34.0);
+                let n = Vector3::new(-x / 60.0 - 0.0002 * y * y, -y / 100.0, 1.0).normalize();
+                points.extend([x, y, x * x / 120.0 + y * y / 200.0 + 0.0002 * x * y * y]);
+                normals.extend([n.x, n.y, n.z]);
+            }
+        }
+        Arc::new(PointCloud::new(points, None, Some(normals.into()), frame).unwrap())
+    }
+
+    #[test]
+    fn the_source_frames_spread_joins_the_poses() {
+        let op: Icp =
+            fusegraph_engine::typed::declared_defaults().expect("every parameter has a default");
+        let run = |source_covariance: Option<Table>| {
+            let mut i = inputs(None, None);
+            (i.source, i.target) = (bowl("camera_left"), bowl("mri_lps"));
+            i.source_covariance = source_covariance.map(Arc::new);
+            let mut ctx = RunCtx::new("icp", &std::env::temp_dir());
+            op.run(i, &mut ctx).map(|_| ctx.into_metrics())
+        };
+        let without = run(None).unwrap();
+        // 0.1 mm per axis of shift, no turn: at the identity pose it passes
+        // to the pose as it is, adding 0.03 mm^2 to its shift's variance.
+        let shift =
+            Matrix6::from_diagonal(&nalgebra::Vector6::new(0.0, 0.0, 0.0, 0.01, 0.01, 0.01));
+        let with = run(Some(pose_covariance_table(&shift))).unwrap();
+        assert!(
+            (with["source_frame_translation_sd_mm"] - 0.03f64.sqrt()).abs() < 1e-6,
+            "{with:?}"
+        );
+        let total = without["translation_sd_mm"].powi(2) + 0.03;
+        assert!((with["translation_sd_mm"] - total.sqrt()).abs() < 1e-6);
+        let wrong = Table::new(vec!["x_mm".into()], vec![1.0]).unwrap();
+        let e = run(Some(wrong)).unwrap_err().to_string();
+        assert!(e.contains("source_covariance"), "{e}");
     }
 
     #[test]

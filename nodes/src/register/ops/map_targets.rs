@@ -14,7 +14,7 @@ use nalgebra::{Matrix3, Point3};
 /// Targets marked in MRI (lesions) mapped into camera (robot) space with a registration
 #[derive(Op)]
 // 3: each target's predicted error from the registration's covariance.
-#[op(name = "register.map_targets", version = 3)]
+#[op(name = "register.map_targets", version = 4)]
 pub struct MapTargets {
     /// Phantom view whose left camera is camera_left
     #[param(default = 0, min = 0)]
@@ -146,9 +146,10 @@ impl RunOp for MapTargets {
     }
 }
 
-/// Each target's observed error against the truth (`target_<id>_error_mm`)
-/// and, with predictions, how many lie within their 95 % bound
-/// (`targets_within_bound95`).
+/// Each target's observed error against the truth (`target_<id>_error_mm`,
+/// and its components in the targets' mapped frame, mapped minus true,
+/// `target_<id>_error_{x,y,z}_mm`) and, with predictions, how many lie within
+/// their 95 % bound (`targets_within_bound95`).
 fn report_observed(
     ctx: &mut RunCtx,
     ids: &[u32],
@@ -159,8 +160,12 @@ fn report_observed(
 ) {
     let mut within = 0;
     for (k, (id, (p, m))) in ids.iter().zip(points.iter().zip(mapped)).enumerate() {
-        let error = (truth(p) - m).norm();
+        let offset = m - truth(p);
+        let error = offset.norm();
         ctx.metric(&format!("target_{id}_error_mm"), error);
+        for (axis, e) in ["x", "y", "z"].iter().zip(offset.iter()) {
+            ctx.metric(&format!("target_{id}_error_{axis}_mm"), *e);
+        }
         within += rows.get(k).is_some_and(|r| error <= r[2]) as usize;
     }
     if !rows.is_empty() {

@@ -2,10 +2,12 @@
 
 use crate::cloud::convert::{cloud_normals, cloud_points, make_cloud};
 use crate::cloud::estimate_normals;
-use crate::register::convert::{marker_points, markers_value, transform_isometry};
+use crate::register::convert::{
+    empty_pose_covariance, marker_points, markers_value, pose_covariance_table, transform_isometry,
+};
 use crate::register::{
-    IcpMethod, IcpParams, Kernel, MarkerAnchoring, MergeParams, View, ViewMarkers, merge_markers,
-    poses_from_markers, register_views,
+    IcpMethod, IcpParams, Kernel, MarkerAnchoring, MergeParams, View, ViewMarkers,
+    carried_pose_covariance, first_view_spread, merge_markers, poses_from_markers, register_views,
 };
 use fusegraph_engine::Inputs;
 use fusegraph_engine::typed::declaration::{
@@ -13,14 +15,15 @@ use fusegraph_engine::typed::declaration::{
 };
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Markers, PointCloud, Table, Transform};
-use nalgebra::{Isometry3, Point3};
+use nalgebra::{Isometry3, Point3, Vector3};
 
 /// Views `register.multiview` accepts.
 pub const MAX_VIEWS: usize = 8;
 
 /// Several camera clouds (and their markers) with rough poses -> one cloud and one marker set: pairwise ICP around the ring, then global adjustment
 #[derive(Op)]
-#[op(name = "register.multiview", version = 6)]
+// 7: the merged set's frame covariance (`covariance`).
+#[op(name = "register.multiview", version = 7)]
 pub struct Multiview {
     /// ICP: pairs farther apart are ignored
     #[param(default = 8.0, unit = "mm", min = 1e-3)]
@@ -56,6 +59,10 @@ pub struct Multiview {
     /// surface pairs in the registration (0 = surfaces alone)
     #[param(default = 1.0, min = 0.0)]
     pub marker_weight: f64,
+    /// The first view's spread: its surface's errors taken as correlated
+    /// within cubes of this side (its matching windows and smoothing)
+    #[param(default = 20.0, unit = "mm", min = 0.0)]
+    pub error_block_mm: f64,
 }
 
 /// The frame of `register.multiview`'s outputs.
@@ -140,6 +147,13 @@ pub struct MultiviewOutputs {
     pub poses: Table,
     /// Every view's markers in the output frame, sightings of one marker merged (empty without marker inputs)
     pub markers: Markers,
+    /// How well the views pin the merged set against the first view's true
+    /// camera frame: the covariance of a small turn (`rotation_*_rad`) and
+    /// shift (`translation_*_mm`) of the whole output in the output frame,
+    /// from the first view's fit onto the others (the frame follows its
+    /// data); 6 x 6, one row per column (no rows where its pairs do not pin
+    /// it). `register.icp` takes it as `source_covariance`
+    pub covariance: Table,
 }
 
 /// The colour of each view in the merged cloud.
@@ -240,11 +254,51 @@ impl RunOp for Multiview {
         });
         let mut m = register_views(&views, &rough, &p, self.rounds, anchoring.as_ref())
             .map_err(OpError::invalid)?;
+        let spread = first_view_spread(
+            &views,
+            &m.poses,
+            &p,
+            anchoring.as_ref(),
+            self.error_block_mm,
+        );
+        let to_output = match self.frame {
+            OutputFrame::FirstView => m.poses[0].inverse(),
+            OutputFrame::World => Isometry3::identity(),
+        };
+        let covariance = match spread {
+            Ok(c) => {
+                let c = carried_pose_covariance(&to_output, &c);
+                let turn = (0..3).map(|i| c[(i, i)]).sum::<f64>().sqrt();
+                ctx.metric("frame_rotation_sd_deg", turn.to_degrees());
+                // Where it matters: how far the middle of the first view's
+                // surface may move (RMS over the axes, mm).
+                let n = views[0].points.len() as f64;
+                let middle = views[0]
+                    .points
+                    .iter()
+                    .map(|x| x.coords)
+                    .sum::<Vector3<f64>>()
+                    / n;
+                let middle = to_output * (m.poses[0] * Point3::from(middle));
+                let mut j = nalgebra::Matrix3x6::zeros();
+                j.fixed_view_mut::<3, 3>(0, 0)
+                    .copy_from(&(-middle.coords.cross_matrix()));
+                j.fixed_view_mut::<3, 3>(0, 3)
+                    .copy_from(&nalgebra::Matrix3::identity());
+                ctx.metric("frame_shift_sd_mm", (j * c * j.transpose()).trace().sqrt());
+                pose_covariance_table(&c)
+            }
+            Err(e) => {
+                ctx.note(format!(
+                    "no covariance of the merged set: the first view against the others: {e}"
+                ));
+                empty_pose_covariance()
+            }
+        };
         let out_frame = match self.frame {
             OutputFrame::FirstView => {
-                let origin = m.poses[0].inverse();
                 for pose in &mut m.poses {
-                    *pose = origin * *pose;
+                    *pose = to_output * *pose;
                 }
                 frame
             }
@@ -303,6 +357,7 @@ impl RunOp for Multiview {
             cloud: make_cloud(&pts, None, Some(colors.into()), &out_frame)?,
             poses,
             markers: merged_markers,
+            covariance,
         })
     }
 }

@@ -258,10 +258,12 @@ fn others(
 /// residuals block by block ([`pose_spread`] over `block_mm` cubes).
 ///
 /// View 0 holds the frame: the adjustment moves every other view onto it, so
-/// where its own data sit off the truth (noise, a matching bias along its
-/// lines of sight, its markers' depth errors), the whole merged set follows
-/// them. That common motion does not show in a later registration's
-/// residuals; this is its spread. An error when the pairs do not pin it.
+/// where its own data sit off the truth (its surface's noise, its markers'
+/// depth errors), the whole merged set follows them. That common motion
+/// does not show in a later registration's residuals; this is its spread,
+/// as far as view 0's residuals against the others show it (an offset its
+/// whole surface shares with every other view, such as a matcher's bias,
+/// they cannot). An error when the pairs do not pin it.
 pub fn first_view_spread(
     views: &[View],
     poses: &[Isometry3<f64>],

@@ -17,6 +17,9 @@ use fusegraph_plugin_api::derive::{Choice, Params};
 use nalgebra::{Point3, Vector3};
 use std::collections::BTreeMap;
 
+/// The smallest f-number a lens may have (0 aside: a pinhole).
+const MIN_F_NUMBER: f64 = 0.5;
+
 /// Named sets of conditions.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Choice)]
 pub enum ConditionsPreset {
@@ -82,7 +85,7 @@ pub struct Conditions {
     /// Cast shadows of the dome and the markers
     #[param(default = false)]
     pub shadows: bool,
-    /// Lens f-number (0 = a pinhole: everything in focus); defocus follows
+    /// Lens f-number (0 = a pinhole: everything in focus; else 0.5 or more); defocus follows
     /// the thin-lens blur circle
     #[param(default = 0.0, min = 0.0, max = 64.0)]
     pub f_number: f64,
@@ -279,6 +282,18 @@ impl Conditions {
         {
             problems.push(("lamp_kelvin", format!("{k} K is outside 1667..=25000 K")));
         }
+        // A tiny f-number is an aperture metres wide: blur circles of
+        // thousands of pixels, which would take the renderer minutes.
+        if self.f_number > 0.0 && self.f_number < MIN_F_NUMBER {
+            problems.push((
+                "f_number",
+                format!(
+                    "f/{} is wider than any lens (f-numbers start near 0.7): give {MIN_F_NUMBER} \
+                     or more, or 0 for a pinhole",
+                    self.f_number
+                ),
+            ));
+        }
         problems
     }
 
@@ -406,6 +421,12 @@ mod tests {
         c.lamp_kelvin = vec![3000.0];
         c.lamp_intensities = vec![1.0, 0.5];
         assert!(c.problems().is_empty());
+        // An aperture metres wide is refused; a pinhole (0) and f/0.5 are not.
+        for (f, refused) in [(0.001, true), (0.49, true), (0.0, false), (0.5, false)] {
+            c.f_number = f;
+            let names: Vec<_> = c.problems().into_iter().map(|p| p.0).collect();
+            assert_eq!(names == ["f_number"], refused, "f/{f}: {names:?}");
+        }
         let light = c.lighting(&Point3::new(0.0, 0.0, 0.0));
         assert_eq!(light.lamps.len(), 2);
         assert_eq!(light.lamps[1].intensity, 0.5);

@@ -2,7 +2,7 @@
 //! solvers' types.
 
 use super::{StereoCalibration, StereoRectification};
-use crate::camera::{isometry_from_matrix, isometry_to_matrix};
+use crate::camera::{CameraModel, isometry_from_matrix, isometry_to_matrix};
 use fusegraph_engine::value::{Rectification, StereoRig};
 use nalgebra::{Matrix3, Matrix3x4, Matrix4};
 
@@ -20,10 +20,20 @@ pub(crate) fn rig_isometry(rig: &StereoRig) -> nalgebra::Isometry3<f64> {
 /// A stereo calibration as the rig value: both cameras and R, T (left ->
 /// right, mm).
 pub(crate) fn rig_value(s: &StereoCalibration) -> StereoRig {
-    let m = isometry_to_matrix(&s.left_to_right);
+    stereo_rig_value(&s.left, &s.right, &isometry_to_matrix(&s.left_to_right))
+}
+
+/// Two cameras and the left -> right camera frame transform (4 x 4, mm) as
+/// the rig value.
+pub(crate) fn stereo_rig_value(
+    left: &CameraModel,
+    right: &CameraModel,
+    left_to_right: &[[f64; 4]; 4],
+) -> StereoRig {
+    let m = left_to_right;
     StereoRig {
-        left: s.left.to_value(),
-        right: s.right.to_value(),
+        left: left.to_value(),
+        right: right.to_value(),
         rotation: std::array::from_fn(|r| std::array::from_fn(|c| m[r][c])),
         translation_mm: [m[0][3], m[1][3], m[2][3]],
     }

@@ -47,7 +47,7 @@ pub use zhang::{intrinsics_from_homographies, pose_from_homography};
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;
 
-pub(crate) use conversions::{rectification_of, rig_isometry};
+pub(crate) use conversions::{rectification_of, rig_isometry, stereo_rig_value};
 
 /// Registers the `calib.*` ops.
 pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {

@@ -411,13 +411,9 @@ mod tests {
         ] {
             // The point moved before iso, against the carried motion after it.
             let shift = iso * (p + w.cross(&p.coords) + t) - iso * p;
-            let q = (iso * p).coords;
-            let mut j = nalgebra::Matrix3x6::zeros();
-            j.fixed_view_mut::<3, 3>(0, 0)
-                .copy_from(&(-q.cross_matrix()));
-            j.fixed_view_mut::<3, 3>(0, 3)
-                .copy_from(&nalgebra::Matrix3::identity());
-            let predicted = j * carried * j.transpose();
+            // How far a point moves under the carried motion (at the
+            // identity, mapped_point_covariance is J C J^T, J = [-[q]x, I]).
+            let predicted = mapped_point_covariance(&Isometry3::identity(), &carried, &(iso * p));
             let expected = shift * shift.transpose();
             assert!(
                 (predicted - expected).norm() < 1e-3 * expected.norm(),

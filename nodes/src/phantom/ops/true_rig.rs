@@ -1,6 +1,7 @@
 //! `phantom.true_rig`: the stereo rig the phantom was rendered with.
 
 use super::TruthInput;
+use crate::calib::stereo_rig_value;
 use crate::phantom::load_truth;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::StereoRig;
@@ -26,14 +27,8 @@ impl RunOp for TrueRig {
         let truth = load_truth(&inputs.truth)?;
         let rig = &truth.rig;
         ctx.metric("baseline_mm", rig.baseline_mm);
-        let m = &rig.left_to_right;
         Ok(TrueRigOutputs {
-            rig: StereoRig {
-                left: rig.left.to_value(),
-                right: rig.right.to_value(),
-                rotation: std::array::from_fn(|r| std::array::from_fn(|c| m[r][c])),
-                translation_mm: std::array::from_fn(|r| m[r][3]),
-            },
+            rig: stereo_rig_value(&rig.left, &rig.right, &rig.left_to_right),
         })
     }
 }

@@ -410,15 +410,11 @@ mod tests {
     /// An uneven bowl (18 x 18 points, 4 mm apart) with its normals, as a
     /// cloud in `frame`.
     fn bowl(frame: &str) -> Arc<PointCloud> {
-        let (mut points, mut normals) = (Vec::new(), Vec::new());
-        for i in 0..18 {
-            for j in 0..18 {
-                let (x, y) = (4.0 * i as f32 - 34.0, 4.0 * j as f32 - 34.0);
-                let n = Vector3::new(-x / 60.0 - 0.0002 * y * y, -y / 100.0, 1.0).normalize();
-                points.extend([x, y, x * x / 120.0 + y * y / 200.0 + 0.0002 * x * y * y]);
-                normals.extend([n.x, n.y, n.z]);
-            }
-        }
+        let (points, normals) = crate::register::pose_spread::uneven_bowl(18, 4.0);
+        let flat =
+            |v: Vec<[f64; 3]>| -> Vec<f32> { v.concat().iter().map(|&x| x as f32).collect() };
+        let points = flat(points.iter().map(|p| [p.x, p.y, p.z]).collect());
+        let normals = flat(normals.iter().map(|n| [n.x, n.y, n.z]).collect());
         Arc::new(PointCloud::new(points, None, Some(normals.into()), frame).unwrap())
     }
 

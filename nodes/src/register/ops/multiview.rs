@@ -7,7 +7,8 @@ use crate::register::convert::{
 };
 use crate::register::{
     IcpMethod, IcpParams, Kernel, MarkerAnchoring, MergeParams, View, ViewMarkers,
-    carried_pose_covariance, first_view_spread, merge_markers, poses_from_markers, register_views,
+    carried_pose_covariance, first_view_spread, mapped_point_covariance, merge_markers,
+    poses_from_markers, register_views,
 };
 use fusegraph_engine::Inputs;
 use fusegraph_engine::typed::declaration::{
@@ -280,12 +281,8 @@ impl RunOp for Multiview {
                     .sum::<Vector3<f64>>()
                     / n;
                 let middle = to_output * (m.poses[0] * Point3::from(middle));
-                let mut j = nalgebra::Matrix3x6::zeros();
-                j.fixed_view_mut::<3, 3>(0, 0)
-                    .copy_from(&(-middle.coords.cross_matrix()));
-                j.fixed_view_mut::<3, 3>(0, 3)
-                    .copy_from(&nalgebra::Matrix3::identity());
-                ctx.metric("frame_shift_sd_mm", (j * c * j.transpose()).trace().sqrt());
+                let moved = mapped_point_covariance(&Isometry3::identity(), &c, &middle);
+                ctx.metric("frame_shift_sd_mm", moved.trace().sqrt());
                 pose_covariance_table(&c)
             }
             Err(e) => {

@@ -304,6 +304,19 @@ pub fn perturbed_rigs(
         .collect()
 }
 
+/// The rig moved by + and - a disparity offset of `sd_px` that every match
+/// shares (a dense matcher's bias on a curved, weakly textured surface),
+/// for [`triangulation_shifts`]: the right camera's principal point moved
+/// along its rows by `sd_px`, which moves every disparity by as much (to
+/// first order, for a rig near its rectified one) and every point along its
+/// ray by z^2 / (f b) per px.
+pub fn disparity_offset_rigs(rig: &RigModel, sd_px: f64) -> (RigModel, RigModel) {
+    let (mut plus, mut minus) = (rig.clone(), rig.clone());
+    plus.right.cx += sd_px;
+    minus.right.cx -= sd_px;
+    (plus, minus)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -391,6 +404,21 @@ mod tests {
             "{}",
             shifts[2]
         );
+    }
+
+    #[test]
+    fn a_shared_disparity_offset_moves_a_point_along_its_ray_by_z2_over_fb() {
+        // 0.05 px at 600 mm with f = 1300 px and b = 55 mm: 600^2 * 0.05 /
+        // (1300 * 55) = 0.2517 mm of depth, along the point's ray.
+        let rig = rig();
+        let p = Point3::new(20.0, -15.0, 600.0);
+        let shifts = triangulation_shifts(&rig, &[disparity_offset_rigs(&rig, 0.05)], &p).unwrap();
+        let shift = shifts[0];
+        let depth = 600.0f64.powi(2) * 0.05 / (1300.0 * 55.0);
+        assert!((shift.z.abs() - depth).abs() < 0.03 * depth, "{shift}");
+        let along = shift.dot(&p.coords.normalize()).abs();
+        let across = (shift.norm_squared() - along * along).max(0.0).sqrt();
+        assert!(across < 0.1 * along, "{shift}: {across} across the ray");
     }
 
     #[test]

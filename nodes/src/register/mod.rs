@@ -23,7 +23,8 @@ pub use multiview::{
     MarkerAnchoring, Multiview, View, first_view_spread, poses_from_markers, register_views,
 };
 pub use pose_spread::{
-    PoseSpread, ShiftField, carried_pose_covariance, mapped_point_covariance, pose_spread,
+    PoseSpread, ShiftField, ShiftedPoint, carried_pose_covariance, mapped_point_covariance,
+    pose_spread,
 };
 pub use procrustes::{Similarity, umeyama};
 pub use target_error::{

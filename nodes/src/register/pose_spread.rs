@@ -31,8 +31,21 @@ use std::collections::HashMap;
 
 /// A shift field common to the source: a source-frame point's shift
 /// (source frame, mm) along each of the field's standard-deviation
-/// directions, `None` where it has none.
-pub type ShiftField<'a> = dyn Fn(&Point3<f64>) -> Option<Vec<Vector3<f64>>> + Sync + 'a;
+/// directions, `None` where it has none. Every point must give the same
+/// number of directions.
+pub type ShiftField<'a> =
+    dyn Fn(&Point3<f64>, ShiftedPoint) -> Option<Vec<Vector3<f64>>> + Sync + 'a;
+
+/// What kind of source point a shift field is asked about: a field may move
+/// the surface and the landmarks differently (a matcher's bias moves the
+/// dense surface, not markers found in the images on their own).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ShiftedPoint {
+    /// A point of the source cloud.
+    Surface,
+    /// A source landmark.
+    Landmark,
+}
 
 /// What a term of the final fit is a residual of.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -79,6 +92,10 @@ pub struct PoseSpread {
     pub independent: Matrix6<f64>,
     /// From the given shift field (zero without one).
     pub shift: Matrix6<f64>,
+    /// The pose's response (rad, mm; rotation first) to each of the shift
+    /// field's directions, in its order: `shift` is the sum of their outer
+    /// products.
+    pub shift_responses: Vec<Vector6<f64>>,
     /// Blocks with residuals in them.
     pub blocks: usize,
     /// Terms of the final fit.
@@ -169,15 +186,19 @@ pub fn pose_spread(
     }
     let (noise, blocks) = noise_covariance(&terms, &h_inverse, block_mm);
     let (independent, _) = noise_covariance(&terms, &h_inverse, 0.0);
-    let shift = match shifts {
-        Some(f) => shift_covariance(&terms, &src, anchors, transform, f)?,
-        None => Matrix6::zeros(),
+    let shift_responses = match shifts {
+        Some(f) => shift_responses(&terms, &src, anchors, transform, f)?,
+        None => Vec::new(),
     };
+    let shift = shift_responses
+        .iter()
+        .fold(Matrix6::zeros(), |c, r| c + r * r.transpose());
     Ok(PoseSpread {
         covariance: noise + shift,
         noise,
         independent,
         shift,
+        shift_responses,
         blocks,
         terms: terms.len(),
     })
@@ -191,16 +212,15 @@ fn normal_matrix<'a>(terms: impl Iterator<Item = (&'a Term, f64)>) -> Matrix6<f6
     })
 }
 
-/// Clusters of at most this many terms get the leverage correction.
-const SMALL_CLUSTER: usize = 8;
-
 /// The cluster-robust covariance H^-1 (sum_b g_b g_b^T) H^-1 over blocks
 /// of `block_mm` (0: each term its own block; each landmark is always one
-/// block), and the number of blocks. A small cluster's residuals are
-/// first divided by its leverage, (I - H_gg)^-1/2 (Bell & McCaffrey's CR2):
-/// a fit to a dozen landmarks draws each landmark's residual towards zero by
-/// the share of the pose it pins, which would make their noise look smaller
-/// than it is; a block of hundreds of surface pairs pins a negligible share.
+/// block), and the number of blocks. Each cluster's residuals are first
+/// divided by its leverage, (I - H_gg)^-1/2 (Bell & McCaffrey's CR2): the
+/// fit draws a cluster's residuals towards zero by the share of the pose it
+/// pins, which would make the noise look smaller than it is; a dozen
+/// landmarks each pin much of it, and a few dozen 20 mm blocks of a surface
+/// together pin all six parameters, so the plain sum comes out about
+/// (G - 6) / G of the truth with G blocks.
 fn noise_covariance(
     terms: &[Term],
     h_inverse: &Matrix6<f64>,
@@ -226,54 +246,61 @@ fn noise_covariance(
     // Blocks in a fixed order: the same bits however the map iterates.
     let mut keys: Vec<_> = clusters.keys().copied().collect();
     keys.sort_unstable();
+    let root = h_inverse.cholesky().map(|c| c.l());
     let meat = keys.iter().fold(Matrix6::zeros(), |m, k| {
-        let s = cluster_score(&clusters[k], h_inverse);
+        let s = cluster_score(&clusters[k], root.as_ref());
         m + s * s.transpose()
     });
     (h_inverse * meat * h_inverse, clusters.len())
 }
 
-/// A cluster's sum of w r J, its residuals corrected for their leverage when
-/// it is small (see [`noise_covariance`]).
-fn cluster_score(terms: &[&Term], h_inverse: &Matrix6<f64>) -> Vector6<f64> {
-    let plain = || {
-        terms.iter().fold(Vector6::zeros(), |g, t| {
-            g + t.row() * (t.weight * t.residual)
-        })
-    };
-    if terms.len() > SMALL_CLUSTER {
-        return plain();
-    }
-    let n = terms.len();
-    // With u_i = sqrt(w_i) J_i: M = I - U H^-1 U^T, and the corrected
-    // residuals sqrt(w)^-1 M^-1/2 sqrt(w) r.
-    let u: Vec<Vector6<f64>> = terms.iter().map(|t| t.row() * t.weight.sqrt()).collect();
-    let m = nalgebra::DMatrix::from_fn(n, n, |i, j| {
-        f64::from(u8::from(i == j)) - (u[i].transpose() * h_inverse * u[j])[(0, 0)]
+/// A cluster's sum of w r J with its residuals corrected for their leverage
+/// (see [`noise_covariance`]), given L with L L^T = H^-1 (`None`: plain).
+///
+/// With u_i = sqrt(w_i) J_i and s_i = sqrt(w_i) r_i, the corrected score is
+/// U^T (I - U H^-1 U^T)^-1/2 s. The leverage U H^-1 U^T has rank at most 6:
+/// with A = U^T U and L^T A L = Q diag(l) Q^T, it is E diag(l) E^T for
+/// E = U L Q diag(l)^-1/2, and the score is g0 + A L Q F Q^T L^T g0 with
+/// g0 = U^T s and F = diag(((1 - l)^-1/2 - 1) / l): 6 x 6 work for a
+/// cluster of any size.
+fn cluster_score(terms: &[&Term], root: Option<&Matrix6<f64>>) -> Vector6<f64> {
+    let plain = terms.iter().fold(Vector6::zeros(), |g, t| {
+        g + t.row() * (t.weight * t.residual)
     });
-    let e = m.symmetric_eigen();
-    if e.eigenvalues.iter().any(|&l| l <= 1e-6) {
-        return plain();
+    let Some(l) = root else {
+        return plain;
+    };
+    let a = terms.iter().fold(Matrix6::zeros(), |a, t| {
+        let row = t.row();
+        a + row * row.transpose() * t.weight
+    });
+    let e = (l.transpose() * a * l).symmetric_eigen();
+    if e.eigenvalues.iter().any(|&x| x >= 1.0 - 1e-6) {
+        // The cluster alone pins a direction of the pose: its residuals
+        // there are zero whatever the noise, and no correction restores it.
+        return plain;
     }
-    let root_inverse = &e.eigenvectors
-        * nalgebra::DMatrix::from_diagonal(&e.eigenvalues.map(|l| 1.0 / l.sqrt()))
-        * e.eigenvectors.transpose();
-    let scaled = nalgebra::DVector::from_fn(n, |i, _| terms[i].weight.sqrt() * terms[i].residual);
-    let corrected = root_inverse * scaled;
-    // sum_i w_i r~_i J_i = sum_i sqrt(w_i) (M^-1/2 sqrt(w) r)_i J_i.
-    (0..n).fold(Vector6::zeros(), |g, i| g + u[i] * corrected[i])
+    let f = e.eigenvalues.map(|x| {
+        if x > 1e-12 {
+            ((1.0 - x).sqrt().recip() - 1.0) / x
+        } else {
+            0.5
+        }
+    });
+    let q = &e.eigenvectors;
+    plain + a * l * q * Matrix6::from_diagonal(&f) * q.transpose() * l.transpose() * plain
 }
 
-/// The pose's response to each direction of the shift field, summed as
-/// outer products; on a regular subset of at most [`SHIFT_TERMS`] surface
-/// terms (and every landmark term), whose normal matrix it uses too.
-fn shift_covariance(
+/// The pose's response to each direction of the shift field; on a regular
+/// subset of at most [`SHIFT_TERMS`] surface terms (and every landmark
+/// term), whose normal matrix it uses too.
+fn shift_responses(
     terms: &[Term],
     source: &[Point3<f64>],
     anchors: Option<&Anchors>,
     transform: &Isometry3<f64>,
     shifts: &ShiftField,
-) -> Result<Matrix6<f64>, String> {
+) -> Result<Vec<Vector6<f64>>, String> {
     let surface = terms
         .iter()
         .filter(|t| matches!(t.origin, Origin::Surface(_)))
@@ -295,12 +322,15 @@ fn shift_covariance(
     let gradients: Vec<Option<Vec<Vector6<f64>>>> = chosen
         .par_iter()
         .map(|&(t, scale)| {
-            let point = match t.origin {
-                Origin::Surface(i) => source[i],
-                Origin::Landmark(k) => anchors.expect("landmark terms have anchors").source[k],
+            let (point, kind) = match t.origin {
+                Origin::Surface(i) => (source[i], ShiftedPoint::Surface),
+                Origin::Landmark(k) => (
+                    anchors.expect("landmark terms have anchors").source[k],
+                    ShiftedPoint::Landmark,
+                ),
             };
             let row = t.row() * (t.weight * scale);
-            shifts(&point).map(|s| {
+            shifts(&point, kind).map(|s| {
                 s.iter()
                     .map(|d| row * t.direction.dot(&(rotation * d)))
                     .collect()
@@ -317,10 +347,7 @@ fn shift_covariance(
         }
         total.iter_mut().zip(&g).for_each(|(a, b)| *a += b);
     }
-    Ok(total.iter().fold(Matrix6::zeros(), |c, g| {
-        let response = -(h_inverse * g);
-        c + response * response.transpose()
-    }))
+    Ok(total.iter().map(|g| -(h_inverse * g)).collect())
 }
 
 /// A pose covariance carried through `iso`: the covariance, in the frame
@@ -549,12 +576,62 @@ mod tests {
     fn a_common_shift_moves_the_pose_with_it() {
         // Every source point shifted by the same (1, 0, 0.5) mm per standard
         // deviation: ICP follows it in full, so the target moves by as much.
-        let field = |_: &Point3<f64>| Some(vec![Vector3::new(1.0, 0.0, 0.5)]);
+        let field = |_: &Point3<f64>, _| Some(vec![Vector3::new(1.0, 0.0, 0.5)]);
         let (r, s) = fit_and_spread(&bowl().0, 10.0, Some(&field));
         let c = mapped_point_covariance(&r.transform, &s.shift, &Point3::new(3.0, 4.0, -50.0));
         let expected = nalgebra::Matrix3::new(1.0, 0.0, 0.5, 0.0, 0.0, 0.0, 0.5, 0.0, 0.25);
         assert!((c - expected).amax() < 1e-3, "{c}");
         assert!(s.noise.amax() < 1e-12, "a perfect fit has no noise");
+    }
+
+    #[test]
+    fn the_low_rank_leverage_correction_is_the_full_one() {
+        // Bell & McCaffrey's correction written out with the n x n matrix
+        // (I - U H^-1 U^T)^-1/2, against the 6 x 6 form, for clusters of 3
+        // to 40 terms out of a fit of 120.
+        let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+        let unit = Normal::new(0.0, 1.0).unwrap();
+        let mut draw = || unit.sample(&mut rng);
+        let terms: Vec<Term> = (0..120)
+            .map(|i| Term {
+                origin: Origin::Surface(i),
+                moved: Point3::new(30.0 * draw(), 30.0 * draw(), 10.0 * draw()),
+                anchor: Point3::origin(),
+                direction: Vector3::new(draw(), draw(), 1.0).normalize(),
+                residual: draw(),
+                weight: 0.5 + draw().abs(),
+            })
+            .collect();
+        let h_inverse = normal_matrix(terms.iter().map(|t| (t, 1.0)))
+            .try_inverse()
+            .unwrap();
+        let root = h_inverse.cholesky().unwrap().l();
+        for n in [3, 12, 40] {
+            let cluster: Vec<&Term> = terms[..n].iter().collect();
+            let u: Vec<Vector6<f64>> = cluster.iter().map(|t| t.row() * t.weight.sqrt()).collect();
+            let m = nalgebra::DMatrix::from_fn(n, n, |i, j| {
+                f64::from(u8::from(i == j)) - (u[i].transpose() * h_inverse * u[j])[(0, 0)]
+            });
+            let e = m.symmetric_eigen();
+            let root_inverse = &e.eigenvectors
+                * nalgebra::DMatrix::from_diagonal(&e.eigenvalues.map(|l| 1.0 / l.sqrt()))
+                * e.eigenvectors.transpose();
+            let scaled = nalgebra::DVector::from_fn(n, |i, _| {
+                cluster[i].weight.sqrt() * cluster[i].residual
+            });
+            let corrected = root_inverse * scaled;
+            let full = (0..n).fold(Vector6::zeros(), |g, i| g + u[i] * corrected[i]);
+            let low_rank = cluster_score(&cluster, Some(&root));
+            let plain = cluster_score(&cluster, None);
+            assert!(
+                (full - low_rank).amax() < 1e-9 * full.amax(),
+                "{n}: {full} vs {low_rank}"
+            );
+            assert!(
+                (full - plain).amax() > 1e-3 * full.amax(),
+                "{n}: a correction"
+            );
+        }
     }
 
     #[test]

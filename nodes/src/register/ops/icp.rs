@@ -1,6 +1,8 @@
 //! `register.icp`: iterative closest point between two clouds.
 
-use crate::calib::{ParameterCovariance, RigModel, perturbed_rigs, triangulation_shifts};
+use crate::calib::{
+    ParameterCovariance, RigModel, disparity_offset_rigs, perturbed_rigs, triangulation_shifts,
+};
 use crate::cloud::Nearest;
 use crate::cloud::convert::{cloud_normals, cloud_points};
 use crate::register::convert::{
@@ -9,8 +11,8 @@ use crate::register::convert::{
 };
 use crate::register::figures::icp_figures;
 use crate::register::{
-    Anchors, IcpMethod, IcpParams, Kernel, PoseSpread, ShiftField, carried_pose_covariance,
-    icp_anchored, normals_near, pose_spread,
+    Anchors, IcpMethod, IcpParams, Kernel, PoseSpread, ShiftField, ShiftedPoint,
+    carried_pose_covariance, icp_anchored, normals_near, pose_spread,
 };
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Markers, PointCloud, StereoRig, Table, Transform};
@@ -20,7 +22,10 @@ use nalgebra::{Isometry3, Matrix6, Point3, Vector3};
 #[derive(Op)]
 // 4: the pose's covariance (surface noise in blocks, and the rig's calibration).
 // 5: and the source frame's own spread (`source_covariance`).
-#[op(name = "register.icp", version = 5)]
+// 6: and a disparity offset the source surface's views share
+//    (`matcher_bias_sd_px`); every block's residuals corrected for its
+//    leverage.
+#[op(name = "register.icp", version = 6)]
 pub struct Icp {
     /// Error metric
     #[param(default = IcpMethod::PointToPlane)]
@@ -66,6 +71,17 @@ pub struct Icp {
     /// smoothing windows (0: every pair independent, the textbook formula)
     #[param(default = 20.0, unit = "mm", min = 0.0)]
     pub error_block_mm: f64,
+    /// For the pose's covariance, with a rig: the standard deviation of a
+    /// disparity error that every point of the source surface shares (a
+    /// dense matcher's bias on curved, weakly textured skin, which no
+    /// residual shows); it moves the surface, not the landmarks, as an
+    /// error of the right camera's principal point would. 0: none. The
+    /// default is what the main job's views share on the built-in phantom
+    /// (RMS over seeds 101-110, ideal and lab, 1.5 and 6 DN, against
+    /// `phantom.true_disparity`: 0.028 px); measure a real rig's on a
+    /// target of known shape
+    #[param(default = 0.03, unit = "px", min = 0.0)]
+    pub matcher_bias_sd_px: f64,
 }
 
 /// How landmarks join the surface pairs (`landmark_fit`).
@@ -270,8 +286,12 @@ impl RunOp for Icp {
         .map_err(|e| OpError::invalid(e.0))?;
         icp_figures(ctx, &trace, &sp, &tp, &init, &r.transform)?;
         let started = std::time::Instant::now();
-        let field =
-            calibration_field(ctx, inputs.rig.as_deref(), inputs.rig_covariance.as_deref())?;
+        let field = source_shift_field(
+            ctx,
+            inputs.rig.as_deref(),
+            inputs.rig_covariance.as_deref(),
+            self.matcher_bias_sd_px,
+        )?;
         let spread = pose_spread(
             &sp,
             &tp,
@@ -281,7 +301,7 @@ impl RunOp for Icp {
             &p,
             anchors.as_ref(),
             self.error_block_mm,
-            field.as_ref().map(|f| f as &ShiftField),
+            field.as_ref().map(|(f, _)| f as &ShiftField),
         );
         let frame_spread = match inputs.source_covariance.as_deref() {
             Some(t) if t.row_count() == 0 => {
@@ -300,7 +320,8 @@ impl RunOp for Icp {
         };
         let covariance = match spread {
             Ok(spread) => {
-                report_spread(ctx, &spread, &frame_spread);
+                let with_bias = field.as_ref().is_some_and(|(_, bias)| *bias);
+                report_spread(ctx, &spread, &frame_spread, with_bias);
                 pose_covariance_table(&(spread.covariance + frame_spread))
             }
             Err(e) => {
@@ -317,14 +338,24 @@ impl RunOp for Icp {
     }
 }
 
-/// How each source point moves along each standard-deviation direction of
-/// the rig's calibration (first order), or `None` without a rig.
+/// How each source point moves (first order) along each standard-deviation
+/// direction of the rig's calibration and, last, of a disparity offset of
+/// `bias_sd_px` that the source surface shares (landmarks, found in the
+/// images on their own, do not move with it); and whether that last
+/// direction is there. `None` without a rig or with nothing to spread.
 #[allow(clippy::type_complexity)]
-fn calibration_field(
+fn source_shift_field(
     ctx: &mut RunCtx,
     rig: Option<&StereoRig>,
     covariance: Option<&Table>,
-) -> Result<Option<impl Fn(&Point3<f64>) -> Option<Vec<Vector3<f64>>> + Sync + use<>>, OpError> {
+    bias_sd_px: f64,
+) -> Result<
+    Option<(
+        impl Fn(&Point3<f64>, ShiftedPoint) -> Option<Vec<Vector3<f64>>> + Sync + use<>,
+        bool,
+    )>,
+    OpError,
+> {
     let (rig, covariance) = match (rig, covariance) {
         (None, None) => return Ok(None),
         (Some(r), Some(c)) => (r, c),
@@ -334,26 +365,40 @@ fn calibration_field(
             ));
         }
     };
-    if covariance.row_count() == 0 {
+    let model = RigModel::from_value(rig);
+    let calibration = if covariance.row_count() == 0 {
         ctx.note(
             "the rig's calibration has no covariance (a parameter undetermined): its spread is \
              not in the pose's covariance",
         );
+        Vec::new()
+    } else {
+        let covariance = ParameterCovariance::from_table(covariance)
+            .map_err(|e| OpError::invalid(format!("rig_covariance: {e}")))?;
+        perturbed_rigs(&model, &covariance.names, &covariance.sigma_directions())
+            .map_err(|e| OpError::invalid(format!("rig_covariance: {e}")))?
+    };
+    let bias = (bias_sd_px > 0.0).then(|| [disparity_offset_rigs(&model, bias_sd_px)]);
+    if calibration.is_empty() && bias.is_none() {
         return Ok(None);
     }
-    let covariance = ParameterCovariance::from_table(covariance)
-        .map_err(|e| OpError::invalid(format!("rig_covariance: {e}")))?;
-    let model = RigModel::from_value(rig);
-    let rigs = perturbed_rigs(&model, &covariance.names, &covariance.sigma_directions())
-        .map_err(|e| OpError::invalid(format!("rig_covariance: {e}")))?;
-    Ok(Some(move |p: &Point3<f64>| {
-        triangulation_shifts(&model, &rigs, p)
-    }))
+    let with_bias = bias.is_some();
+    let field = move |p: &Point3<f64>, kind: ShiftedPoint| {
+        let mut shifts = triangulation_shifts(&model, &calibration, p)?;
+        match (&bias, kind) {
+            (Some(b), ShiftedPoint::Surface) => shifts.extend(triangulation_shifts(&model, b, p)?),
+            (Some(_), ShiftedPoint::Landmark) => shifts.push(Vector3::zeros()),
+            (None, _) => {}
+        }
+        Some(shifts)
+    };
+    Ok(Some((field, with_bias)))
 }
 
 /// The pose's standard deviations and what they come from, as metrics:
-/// the fit's own spread `s` and the source frame's carried into it.
-fn report_spread(ctx: &mut RunCtx, s: &PoseSpread, frame: &Matrix6<f64>) {
+/// the fit's own spread `s` (its shift field's last direction the matcher's
+/// bias when `with_bias`) and the source frame's carried into it.
+fn report_spread(ctx: &mut RunCtx, s: &PoseSpread, frame: &Matrix6<f64>, with_bias: bool) {
     let rotation = |c: &Matrix6<f64>| (0..3).map(|i| c[(i, i)]).sum::<f64>().max(0.0).sqrt();
     let translation = |c: &Matrix6<f64>| (3..6).map(|i| c[(i, i)]).sum::<f64>().max(0.0).sqrt();
     let total = s.covariance + frame;
@@ -362,7 +407,18 @@ fn report_spread(ctx: &mut RunCtx, s: &PoseSpread, frame: &Matrix6<f64>) {
     ctx.metric("source_frame_translation_sd_mm", translation(frame));
     ctx.metric("noise_translation_sd_mm", translation(&s.noise));
     ctx.metric("independent_translation_sd_mm", translation(&s.independent));
-    ctx.metric("calibration_translation_sd_mm", translation(&s.shift));
+    let outer = |r: &nalgebra::Vector6<f64>| r * r.transpose();
+    let (calibration, bias) = match s.shift_responses.split_last() {
+        Some((last, rest)) if with_bias => (rest, Some(outer(last))),
+        _ => (s.shift_responses.as_slice(), None),
+    };
+    let calibration = calibration
+        .iter()
+        .fold(Matrix6::zeros(), |c, r| c + outer(r));
+    ctx.metric("calibration_translation_sd_mm", translation(&calibration));
+    if let Some(bias) = bias {
+        ctx.metric("matcher_bias_translation_sd_mm", translation(&bias));
+    }
     ctx.metric("error_blocks", s.blocks as f64);
 }
 
@@ -475,20 +531,35 @@ mod tests {
             translation_mm: [-50.0, 0.0, 0.0],
         };
         let mut ctx = RunCtx::new("icp", &std::env::temp_dir());
-        let e = calibration_field(&mut ctx, Some(&rig), None)
+        let e = source_shift_field(&mut ctx, Some(&rig), None, 0.0)
             .map(|_| ())
             .unwrap_err();
         assert!(e.to_string().contains("rig and rig_covariance"), "{e}");
         let unknown = Table::new(vec!["left_zoom".into()], vec![1.0]).unwrap();
-        let e = calibration_field(&mut ctx, Some(&rig), Some(&unknown))
+        let e = source_shift_field(&mut ctx, Some(&rig), Some(&unknown), 0.0)
             .map(|_| ())
             .unwrap_err();
         assert!(e.to_string().contains("rig_covariance: `left_zoom`"), "{e}");
         let empty = Table::new(vec!["left_fx_px".into()], Vec::new()).unwrap();
         assert!(
-            calibration_field(&mut ctx, Some(&rig), Some(&empty))
+            source_shift_field(&mut ctx, Some(&rig), Some(&empty), 0.0)
                 .unwrap()
                 .is_none()
+        );
+        // The matcher's bias alone: 0.1 px at 500 mm with f = 10 px and
+        // b = 50 mm moves a surface point 500^2 * 0.1 / (10 * 50) = 50 mm
+        // along its ray (first order), and a landmark not at all.
+        let (field, with_bias) = source_shift_field(&mut ctx, Some(&rig), Some(&empty), 0.1)
+            .unwrap()
+            .unwrap();
+        assert!(with_bias);
+        let p = Point3::new(0.0, 0.0, 500.0);
+        let surface = field(&p, ShiftedPoint::Surface).unwrap();
+        assert_eq!(surface.len(), 1);
+        assert!((surface[0].z.abs() - 50.0).abs() < 1.0, "{}", surface[0]);
+        assert_eq!(
+            field(&p, ShiftedPoint::Landmark).unwrap(),
+            vec![Vector3::zeros()]
         );
         assert!(
             ctx.notes().iter().any(|n| n.contains("no covariance")),

@@ -24,7 +24,7 @@ pub const MAX_VIEWS: usize = 8;
 /// Several camera clouds (and their markers) with rough poses -> one cloud and one marker set: pairwise ICP around the ring, then global adjustment
 #[derive(Op)]
 // 7: the merged set's frame covariance (`covariance`).
-// 8: (used by an experiment whose results may sit in old caches)
+// 8: skipped (an abandoned experiment ran under it; old caches may hold its results)
 // 9: every block's residuals corrected for its leverage in that covariance.
 #[op(name = "register.multiview", version = 9)]
 pub struct Multiview {

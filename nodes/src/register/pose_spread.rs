@@ -218,9 +218,9 @@ fn normal_matrix<'a>(terms: impl Iterator<Item = (&'a Term, f64)>) -> Matrix6<f6
 /// divided by its leverage, (I - H_gg)^-1/2 (Bell & McCaffrey's CR2): the
 /// fit draws a cluster's residuals towards zero by the share of the pose it
 /// pins, which would make the noise look smaller than it is; a dozen
-/// landmarks each pin much of it, and a few dozen 20 mm blocks of a surface
-/// together pin all six parameters, so the plain sum comes out about
-/// (G - 6) / G of the truth with G blocks.
+/// landmarks each pin much of it; the clusters' leverages sum to the six
+/// parameters, so G clusters that share them evenly would give about
+/// (G - 6) / G of the truth.
 fn noise_covariance(
     terms: &[Term],
     h_inverse: &Matrix6<f64>,

@@ -366,7 +366,7 @@ fn source_shift_field(
         }
     };
     let model = RigModel::from_value(rig);
-    let calibration = if covariance.row_count() == 0 {
+    let mut rigs = if covariance.row_count() == 0 {
         ctx.note(
             "the rig's calibration has no covariance (a parameter undetermined): its spread is \
              not in the pose's covariance",
@@ -378,17 +378,17 @@ fn source_shift_field(
         perturbed_rigs(&model, &covariance.names, &covariance.sigma_directions())
             .map_err(|e| OpError::invalid(format!("rig_covariance: {e}")))?
     };
-    let bias = (bias_sd_px > 0.0).then(|| [disparity_offset_rigs(&model, bias_sd_px)]);
-    if calibration.is_empty() && bias.is_none() {
+    let with_bias = bias_sd_px > 0.0;
+    if with_bias {
+        rigs.push(disparity_offset_rigs(&model, bias_sd_px));
+    }
+    if rigs.is_empty() {
         return Ok(None);
     }
-    let with_bias = bias.is_some();
     let field = move |p: &Point3<f64>, kind: ShiftedPoint| {
-        let mut shifts = triangulation_shifts(&model, &calibration, p)?;
-        match (&bias, kind) {
-            (Some(b), ShiftedPoint::Surface) => shifts.extend(triangulation_shifts(&model, b, p)?),
-            (Some(_), ShiftedPoint::Landmark) => shifts.push(Vector3::zeros()),
-            (None, _) => {}
+        let mut shifts = triangulation_shifts(&model, &rigs, p)?;
+        if with_bias && kind == ShiftedPoint::Landmark {
+            *shifts.last_mut().expect("the bias's direction is last") = Vector3::zeros();
         }
         Some(shifts)
     };

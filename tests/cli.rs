@@ -1037,3 +1037,75 @@ fn middlebury_graph_beats_opencv_sgbm_on_real_pairs() {
         );
     }
 }
+
+#[test]
+fn lesions_are_found_in_the_small_phantoms_scan_and_markers_are_not() {
+    let t = tempfile::tempdir().unwrap();
+    let graph = r#"
+[node.phantom]
+op = "phantom.generate"
+size = "small"
+seed = 5
+calibration_pairs = 3
+views = 1
+
+[node.load]
+op = "dicom.load_series"
+in.dir = "phantom.mri_dir"
+
+[node.stretch]
+op = "mri.bright_stretch"
+in.volume = "load.volume"
+
+[node.otsu]
+op = "mri.otsu"
+in.volume = "stretch.volume"
+
+[node.detect]
+op = "mri.detect_lesions"
+in.volume = "load.volume"
+in.mask = "otsu.mask"
+
+[node.eval]
+op = "eval.markers"
+in.markers = "detect.markers"
+in.truth = "phantom.truth"
+reference = "mri_lesion"
+"#;
+    std::fs::write(t.path().join("l.toml"), graph).unwrap();
+    let metric = |r: &serde_json::Value, k: &str| r["metrics"][k].as_f64().unwrap();
+    // The default darker lesions (6 mm, 10 noise SDs): all three, within
+    // 0.3 mm, nothing else.
+    let o = fusegraph(&["run", "l.toml"], t.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r = report(&t.path().join("out/l"));
+    assert_eq!(metric(&r, "eval.found"), 3.0);
+    assert_eq!(metric(&r, "eval.spurious"), 0.0);
+    assert!(metric(&r, "eval.max_error_mm") <= 0.3, "{r}");
+    // Brighter blobs: the gel markers are the brightest things in the scan,
+    // but outside the tissue: none.
+    let o = fusegraph(
+        &["run", "l.toml", "--set", "detect.polarity=brighter"],
+        t.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r = report(&t.path().join("out/l"));
+    assert_eq!(metric(&r, "detect.count"), 0.0, "{r}");
+    // Enhancing lesions (brighter than the tissue) found as such.
+    let o = fusegraph(
+        &[
+            "run",
+            "l.toml",
+            "--set",
+            "detect.polarity=brighter",
+            "--set",
+            "phantom.lesion_signal=0.8",
+        ],
+        t.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r = report(&t.path().join("out/l"));
+    assert_eq!(metric(&r, "eval.found"), 3.0, "{r}");
+    assert_eq!(metric(&r, "eval.spurious"), 0.0);
+    assert!(metric(&r, "eval.max_error_mm") <= 0.3, "{r}");
+}

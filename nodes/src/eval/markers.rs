@@ -89,6 +89,11 @@ pub fn true_marker_centres(
             .iter()
             .map(|m| (m.center_mri_mm, true))
             .collect()),
+        ("mri_lesion", "mri_lps") => Ok(truth
+            .lesions
+            .iter()
+            .map(|l| (l.center_mri_mm, true))
+            .collect()),
         ("world_gel" | "world_face", "world") => {
             Ok(truth.markers.iter().map(|m| (centre(m), true)).collect())
         }
@@ -105,14 +110,14 @@ pub fn true_marker_centres(
                 })
                 .collect())
         }
-        ("mri_gel", _) => Err(format!(
-            "frame `{frame}`, but reference `mri_gel` takes markers in mri_lps"
+        ("mri_gel" | "mri_lesion", _) => Err(format!(
+            "frame `{frame}`, but reference `{reference}` takes markers in mri_lps"
         )),
         ("world_gel" | "world_face", _) => Err(format!(
             "frame `{frame}`, but reference `{reference}` takes markers in world or camera_left"
         )),
         _ => Err(format!(
-            "unknown reference `{reference}` (mri_gel, world_gel or world_face)"
+            "unknown reference `{reference}` (mri_gel, mri_lesion, world_gel or world_face)"
         )),
     }
 }

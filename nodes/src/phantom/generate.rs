@@ -290,7 +290,7 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
             series_uid: ids.series_uid.clone(),
             rescale_slope: RESCALE_SLOPE,
             signal_tissue_gel_lesion: [Material::Tissue, Material::Gel, Material::Lesion]
-                .map(signal_of),
+                .map(|m| signal_of(m, shape.lesion_signal)),
             noise_sigma: config.mri_noise_sigma,
         },
         markers: shape

@@ -30,12 +30,13 @@ pub struct MriParams {
 }
 
 /// Noise-free signal of each material, as on a T1-weighted scan: fat-like tissue
-/// bright, petroleum jelly brighter, lesion darker, plastic and air dark.
-pub fn signal_of(material: Material) -> f32 {
+/// bright, petroleum jelly brighter, plastic and air dark, the lesions at
+/// `lesion_signal` (0.35 by default: darker).
+pub fn signal_of(material: Material, lesion_signal: f32) -> f32 {
     match material {
         Material::Background | Material::Plastic => 0.0,
         Material::Tissue => 0.55,
-        Material::Lesion => 0.35,
+        Material::Lesion => lesion_signal,
         Material::Gel => 1.0,
     }
 }
@@ -142,17 +143,20 @@ pub fn synthesize(
                         .all(|b| corner(i + (b & 1), j + ((b >> 1) & 1), k + (b >> 2)) == c0)
                         && material_at_voxel(i as f64, j as f64, k as f64) == c0;
                     let clean = if pure {
-                        signal_of(c0)
+                        signal_of(c0, shape.lesion_signal)
                     } else {
                         let mut sum = 0.0f32;
                         for &dk in &sub {
                             for &dj in &sub {
                                 for &di in &sub {
-                                    sum += signal_of(material_at_voxel(
-                                        i as f64 + di,
-                                        j as f64 + dj,
-                                        k as f64 + dk,
-                                    ));
+                                    sum += signal_of(
+                                        material_at_voxel(
+                                            i as f64 + di,
+                                            j as f64 + dj,
+                                            k as f64 + dk,
+                                        ),
+                                        shape.lesion_signal,
+                                    );
                                 }
                             }
                         }

@@ -105,6 +105,10 @@ pub struct Lesion {
     pub radius_mm: f64,
 }
 
+fn default_lesion_signal() -> f32 {
+    0.35
+}
+
 /// The whole phantom, in its own frame (mm): base on z = 0, dome towards +z.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PhantomShape {
@@ -118,6 +122,9 @@ pub struct PhantomShape {
     pub markers: Vec<Marker>,
     /// The lesions.
     pub lesions: Vec<Lesion>,
+    /// The lesions' MR signal (tissue 0.55, gel 1.0).
+    #[serde(default = "default_lesion_signal")]
+    pub lesion_signal: f32,
     /// The ellipsoid's rotation, computed once (ray casting asks per sample).
     #[serde(skip)]
     rotation_cache: OnceLock<Rotation3<f64>>,
@@ -162,6 +169,9 @@ pub struct ShapeParams {
     /// Lesion diameter
     #[param(default = 6.0, unit = "mm", min = 1.0, max = 20.0)]
     pub lesion_diameter_mm: f64,
+    /// The lesions' MR signal, in the scan's signal units (tissue 0.55, gel 1.0, air 0): below 0.55 darker than the tissue, above it brighter; the contrast-to-noise ratio is |this - 0.55| / mri_noise
+    #[param(default = 0.35, min = 0.0, max = 1.5)]
+    pub lesion_signal: f64,
 }
 
 impl Default for ShapeParams {
@@ -270,6 +280,7 @@ impl PhantomShape {
             tilt_deg: p.droop_deg,
             markers: Vec::new(),
             lesions: Vec::new(),
+            lesion_signal: p.lesion_signal as f32,
             rotation_cache: OnceLock::new(),
         };
         shape.markers = shape.layout_markers(p, rng)?;

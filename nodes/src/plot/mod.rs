@@ -4,7 +4,7 @@
 
 pub mod ops;
 mod overlay;
-pub use overlay::{mask_over_slice, overlay_panels};
+pub use overlay::{circles_over_slices, mask_over_slice, overlay_panels};
 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;

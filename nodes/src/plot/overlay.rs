@@ -132,6 +132,40 @@ pub fn mask_over_slice(volume: &[f32], mask: &[u8], dims: [usize; 3], k: usize) 
     rgb
 }
 
+/// Slices of a volume (`dims`, i fastest) side by side, each in grey
+/// (scaled between its 1st and 99th percentiles) with a green circle:
+/// `panels` holds each panel's slice `k`, the circle's centre (i, j) in
+/// voxels and its radius in voxels along i (drawn round: the slice's
+/// pixels are taken as square). 8-bit RGB and its size; `None` without
+/// panels.
+pub fn circles_over_slices(
+    volume: &[f32],
+    dims: [usize; 3],
+    panels: &[(usize, [f64; 2], f64)],
+) -> Option<(Vec<u8>, usize, usize)> {
+    if panels.is_empty() {
+        return None;
+    }
+    let (w, h) = (dims[0], dims[1]);
+    let width = w * panels.len();
+    let mut rgb = vec![0u8; width * h * 3];
+    let none = vec![0u8; w * h * dims[2]];
+    for (n, &(k, centre, radius)) in panels.iter().enumerate() {
+        let slice = mask_over_slice(volume, &none, dims, k.min(dims[2] - 1));
+        for j in 0..h {
+            for i in 0..w {
+                let at = 3 * (n * w + i + width * j);
+                rgb[at..at + 3].copy_from_slice(&slice[3 * (i + w * j)..3 * (i + w * j) + 3]);
+                let r = ((i as f64 - centre[0]).powi(2) + (j as f64 - centre[1]).powi(2)).sqrt();
+                if (r - radius.max(1.0)).abs() < 0.5 {
+                    rgb[at..at + 3].copy_from_slice(&[40, 220, 60]);
+                }
+            }
+        }
+    }
+    Some((rgb, width, h))
+}
+
 #[cfg(test)]
 mod slice_tests {
     use super::*;

@@ -7,9 +7,9 @@ use fusegraph_engine::value::{Markers, PathValue};
 
 /// Found marker centres against the phantom's true ones (no assumed order)
 #[derive(Op)]
-#[op(name = "eval.markers", version = 4)]
+#[op(name = "eval.markers", version = 5)]
 pub struct EvalMarkers {
-    /// Which true centres: gel cores in MRI LPS (markers in mri_lps), or gel cores / coloured faces (markers in world, or in camera_left: then only those visible in both images of `view`)
+    /// Which true centres: gel cores in MRI LPS (markers in mri_lps), or gel cores / coloured faces (markers in world, or in camera_left: then only those visible in both images of `view`), or lesion centres in MRI LPS (lesions found in the scan)
     #[param(default = Reference::MriGel)]
     pub reference: Reference,
     /// Farther than this is no match
@@ -30,6 +30,8 @@ pub enum Reference {
     WorldGel,
     /// Coloured face centres in world, for markers in `world` or `camera_left`.
     WorldFace,
+    /// Lesion centres in MRI LPS, for lesions found in the scan (`mri_lps`).
+    MriLesion,
 }
 
 #[derive(Inputs)]

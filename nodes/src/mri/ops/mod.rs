@@ -3,6 +3,7 @@
 mod bright_stretch;
 mod centroids;
 mod components;
+mod detect_lesions;
 mod isosurface;
 mod otsu;
 mod select_markers;
@@ -10,6 +11,9 @@ mod select_markers;
 pub use bright_stretch::{BrightStretch, BrightStretchInputs, BrightStretchOutputs};
 pub use centroids::{CentroidWeighting, Centroids, CentroidsInputs, CentroidsOutputs};
 pub use components::{Components, ComponentsInputs, ComponentsOutputs};
+pub use detect_lesions::{
+    DetectLesions, DetectLesionsInputs, DetectLesionsOutputs, LesionPolarity,
+};
 pub use isosurface::{Isosurface, IsosurfaceInputs, IsosurfaceOutputs};
 pub use otsu::{Otsu, OtsuInputs, OtsuOutputs};
 pub use select_markers::{SelectMarkers, SelectMarkersInputs, SelectMarkersOutputs};

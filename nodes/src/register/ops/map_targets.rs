@@ -14,17 +14,32 @@ use nalgebra::{Matrix3, Point3};
 /// Targets marked in MRI (lesions) mapped into camera (robot) space with a registration
 #[derive(Op)]
 // 3: each target's predicted error from the registration's covariance.
-#[op(name = "register.map_targets", version = 4)]
+// 5: the targets given or detected in the scan.
+#[op(name = "register.map_targets", version = 5)]
 pub struct MapTargets {
     /// Phantom view whose left camera is camera_left
     #[param(default = 0, min = 0)]
     pub view: usize,
+    /// Which targets are mapped: those given (input `targets`, e.g. marked by a radiologist) or those detected in the scan (input `detected`, mri.detect_lesions' markers); the report's notes say which
+    #[param(default = TargetSource::Given)]
+    pub source: TargetSource,
+}
+
+/// Where the mapped targets come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Choice)]
+pub enum TargetSource {
+    /// Given: the `targets` input.
+    Given,
+    /// Found in the scan: the `detected` input.
+    Detected,
 }
 
 #[derive(Inputs)]
 pub struct MapTargetsInputs {
-    /// Targets, mm, in one frame of the transform (e.g. mri_lps)
-    pub targets: Arc<Markers>,
+    /// Targets given, mm, in one frame of the transform (e.g. mri_lps): mapped when source = given
+    pub targets: Option<Arc<Markers>>,
+    /// Targets detected in the scan (mri.detect_lesions' markers): mapped when source = detected
+    pub detected: Option<Arc<Markers>>,
     /// The registration, either way between the targets' frame and the camera's
     pub transform: Arc<Transform>,
     /// ground_truth.json: the targets' true camera positions (targets in mri_lps, camera_left of `view`)
@@ -81,7 +96,34 @@ impl RunOp for MapTargets {
     type Outputs = MapTargetsOutputs;
 
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
-        let (targets, transform) = (inputs.targets, inputs.transform);
+        let transform = inputs.transform;
+        let (targets, port) = match self.source {
+            TargetSource::Given => (inputs.targets, "targets"),
+            TargetSource::Detected => (inputs.detected, "detected"),
+        };
+        let targets = targets.ok_or_else(|| {
+            OpError::invalid(format!(
+                "source = \"{}\" maps the `{port}` input, which is not connected{}",
+                self.source.name(),
+                if port == "detected" {
+                    " (e.g. in.detected = \"detect_lesions.markers\")"
+                } else {
+                    ""
+                }
+            ))
+        })?;
+        ctx.note(&match self.source {
+            TargetSource::Given => format!(
+                "{} targets given (input `targets`), ids {:?}",
+                targets.ids.len(),
+                targets.ids
+            ),
+            TargetSource::Detected => format!(
+                "{} targets detected in the scan (input `detected`), ids {:?}",
+                targets.ids.len(),
+                targets.ids
+            ),
+        });
         let points = marker_points(&targets);
         let (mapped, frame) =
             map_targets(&points, &targets.frame, &transform).map_err(OpError::invalid)?;
@@ -235,6 +277,11 @@ mod tests {
         [10.0, 10.0, 40.0],
     ];
 
+    const GIVEN: MapTargets = MapTargets {
+        view: 0,
+        source: TargetSource::Given,
+    };
+
     fn inputs(camera_frame: &str) -> MapTargetsInputs {
         // The camera's markers: the MRI's, each 1 mm off along some axis.
         let offsets = [
@@ -250,7 +297,8 @@ mod tests {
             .map(|(p, o)| [p[0] + o[0], p[1] + o[1], p[2] + o[2]])
             .collect();
         MapTargetsInputs {
-            targets: markers(&[[0.0, 0.0, 20.0], [0.0, 0.0, 120.0]], "mri_lps"),
+            targets: Some(markers(&[[0.0, 0.0, 20.0], [0.0, 0.0, 120.0]], "mri_lps")),
+            detected: None,
             transform: Arc::new(Transform::identity("mri_lps", "camera_left")),
             truth: None,
             landmarks_source: Some(markers(&camera, camera_frame)),
@@ -262,9 +310,7 @@ mod tests {
     #[test]
     fn matched_markers_give_each_target_its_predicted_error() {
         let mut ctx = RunCtx::new("targets", &std::env::temp_dir());
-        MapTargets { view: 0 }
-            .run(inputs("camera_left"), &mut ctx)
-            .unwrap();
+        GIVEN.run(inputs("camera_left"), &mut ctx).unwrap();
         let m = ctx.metrics();
         let (fre, fle) = (m["marker_fre_mm"], m["marker_fle_mm"]);
         assert!(fre > 0.3 && fre < 1.0, "{fre}");
@@ -280,10 +326,7 @@ mod tests {
         let mut ctx = RunCtx::new("targets", &std::env::temp_dir());
         let mut i = inputs("camera_left");
         i.landmarks_target = Some(markers(&MRI_MARKERS, "world"));
-        let e = MapTargets { view: 0 }
-            .run(i, &mut ctx)
-            .map(|_| ())
-            .unwrap_err();
+        let e = GIVEN.run(i, &mut ctx).map(|_| ()).unwrap_err();
         assert!(
             e.to_string()
                 .contains("one side must be in the targets' frame `mri_lps`"),
@@ -303,7 +346,7 @@ mod tests {
         let mut i = inputs("camera_left");
         i.covariance = Some(Arc::new(table));
         let mut ctx = RunCtx::new("targets", &std::env::temp_dir());
-        let out = MapTargets { view: 0 }.run(i, &mut ctx).unwrap();
+        let out = GIVEN.run(i, &mut ctx).unwrap();
         assert_eq!(out.errors.row_count(), 2);
         let m = ctx.metrics();
         for id in [0, 1] {
@@ -317,14 +360,38 @@ mod tests {
         // A table of another shape is refused, naming the port.
         let mut i = inputs("camera_left");
         i.covariance = Some(Arc::new(Table::new(vec!["a".into()], vec![1.0]).unwrap()));
-        let e = MapTargets { view: 0 }
-            .run(i, &mut ctx)
-            .map(|_| ())
-            .unwrap_err();
+        let e = GIVEN.run(i, &mut ctx).map(|_| ()).unwrap_err();
         assert!(
             e.to_string()
                 .contains("covariance: a pose covariance has the columns"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn detected_targets_are_mapped_when_chosen_and_the_notes_say_so() {
+        let mut i = inputs("camera_left");
+        i.detected = Some(markers(&[[5.0, 0.0, 30.0]], "mri_lps"));
+        let mut ctx = RunCtx::new("targets", std::path::Path::new("."));
+        let detected = MapTargets {
+            source: TargetSource::Detected,
+            ..GIVEN
+        };
+        let out = detected.run(i, &mut ctx).unwrap();
+        assert_eq!(out.targets.ids.len(), 1);
+        assert!((out.targets.positions_mm[2] - 30.0).abs() < 1e-12);
+        assert!(
+            ctx.notes()
+                .iter()
+                .any(|n| n.contains("detected in the scan")),
+            "{:?}",
+            ctx.notes()
+        );
+        // Chosen but not connected: an error naming the input.
+        let mut ctx = RunCtx::new("targets", std::path::Path::new("."));
+        let Err(e) = detected.run(inputs("camera_left"), &mut ctx) else {
+            panic!("ran without its detected targets");
+        };
+        assert!(e.to_string().contains("`detected` input"), "{e}");
     }
 }

@@ -9,7 +9,7 @@ mod procrustes;
 
 pub use evaluate::{Evaluate, EvaluateInputs, EvaluateOutputs};
 pub use icp::{Icp, IcpInputs, IcpKernel, IcpOutputs};
-pub use map_targets::{MapTargets, MapTargetsInputs, MapTargetsOutputs};
+pub use map_targets::{MapTargets, MapTargetsInputs, MapTargetsOutputs, TargetSource};
 pub use match_markers::{MatchMarkers, MatchMarkersInputs, MatchMarkersOutputs};
 pub use multiview::{
     MAX_VIEWS, Multiview, MultiviewInputs, MultiviewOutputs, OutputFrame, ViewInputs,

@@ -359,29 +359,16 @@ struct Pair {
     height: usize,
     left: Vec<f32>,
     right: Vec<f32>,
-    right_gradient: Vec<f32>,
 }
 
 impl Pair {
     fn new(left: &GreyImage, right: &GreyImage) -> Pair {
-        let w = right.width;
         let floats = |img: &GreyImage| img.data.iter().map(|&v| v as f32).collect::<Vec<f32>>();
-        let right_gradient = (0..right.data.len())
-            .map(|i| {
-                let x = i % w;
-                if x == 0 || x + 1 == w {
-                    0.0
-                } else {
-                    0.5 * (right.data[i + 1] as f32 - right.data[i - 1] as f32)
-                }
-            })
-            .collect();
         Pair {
-            width: w,
+            width: right.width,
             height: right.height,
             left: floats(left),
             right: floats(right),
-            right_gradient,
         }
     }
 }
@@ -418,11 +405,7 @@ impl Window {
         for j in -half..=half {
             let yy = (y + j) as usize;
             let row = yy * w..(yy + 1) * w;
-            let (left_row, right_row, gradient_row) = (
-                &pair.left[row.clone()],
-                &pair.right[row.clone()],
-                &pair.right_gradient[row],
-            );
+            let (left_row, right_row) = (&pair.left[row.clone()], &pair.right[row]);
             let jf = j as f32;
             // The warp along this row: d + (gy j + gyy j^2) + (gx + gxy j) i + gxx i^2.
             let (base, linear) = (d + gy * jf + gyy * jf * jf, gx + gxy * jf);
@@ -435,14 +418,15 @@ impl Window {
                 // xr >= 1: truncation is the floor (and no libm call).
                 let x0 = xr as usize;
                 let t = xr - x0 as f32;
-                let (&[r0, r1], &[g0, g1]) = (
-                    right_row[x0..x0 + 2].as_array()?,
-                    gradient_row[x0..x0 + 2].as_array()?,
-                );
+                let &[r0, r1] = right_row[x0..x0 + 2].as_array()?;
                 let r = (r0 + (r1 - r0) * t) as f64;
-                // The gradient of the interpolated row: its slope between
-                // the samples around.
-                let g = (g0 + (g1 - g0) * t) as f64;
+                // The derivative of what is matched, the interpolated row:
+                // its slope between the samples around. (An interpolated
+                // central difference is not the cost's gradient, so its
+                // fixed point is not the cost's minimum: on the lab
+                // phantom at 6 DN it left the disparities 0.01 px lower
+                // and their spread 10 % wider.)
+                let g = (r1 - r0) as f64;
                 let lr = left_row[(x + ii) as usize] as f64 - r;
                 s_lr += lr;
                 s_g += g;
@@ -648,10 +632,12 @@ mod tests {
                 "columns {band:?}: fixed window {fixed:.3} px, growing {grown:.3} px"
             );
         }
-        // Away from it, windows grow as on any weak texture.
+        // Away from it, windows grow as on any weak texture (and both
+        // sizes recover this noise-free pair's integer disparity to within
+        // a hundredth of a pixel).
         let (fixed, grown) = (error(&a, 150..210), error(&b, 150..210));
         assert!(
-            grown < 0.7 * fixed,
+            grown < (0.7 * fixed).max(0.01),
             "fixed {fixed:.3} px, growing {grown:.3} px"
         );
     }

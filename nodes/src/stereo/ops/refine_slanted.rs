@@ -11,7 +11,7 @@ use fusegraph_engine::value::{Disparity, Image};
 /// fronto-parallel bias on slanted surfaces, and windows that grow on weak
 /// texture while they fit -> Disparity
 #[derive(Debug, Clone, PartialEq, Op)]
-#[op(name = "stereo.refine_slanted", version = 3)]
+#[op(name = "stereo.refine_slanted", version = 4)]
 pub struct RefineSlanted {
     /// Smallest window side (odd)
     #[param(default = 9, unit = "px", min = 3, max = 31)]

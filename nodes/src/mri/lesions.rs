@@ -167,29 +167,48 @@ pub fn detect_lesions(
         Polarity::Brighter => -1.0,
     };
 
-    // Scale-normalised LoG responses.
+    // Scale-normalised LoG responses, each scale smoothed from the one
+    // before (Gaussians compose: sigma^2 adds) with shorter kernels than
+    // from the volume. Only three scales are held at once: a scale's maxima
+    // are found once the next is known (a real scan's 50 M voxels times a
+    // dozen scales would not fit).
     let sigmas = scales(p);
-    // Each scale smoothed from the one before (Gaussians compose: sigma^2
-    // adds), with shorter kernels than from the volume.
+    let [nx, ny, nz] = dims;
     let mut smooth = volume.to_vec();
     let mut smoothed_to = 0.0f64;
-    let mut responses: Vec<Vec<f32>> = Vec::with_capacity(sigmas.len());
-    for &s in &sigmas {
-        smooth = gaussian_smooth(
-            &smooth,
-            dims,
-            spacing_mm,
-            (s * s - smoothed_to * smoothed_to).sqrt(),
-        );
-        smoothed_to = s;
-        let mut l = laplacian(&smooth, dims, spacing_mm);
-        let norm = (s * s) as f32 * sign;
-        l.par_iter_mut().for_each(|v| *v *= norm);
-        responses.push(l);
-    }
-    let [nx, ny, nz] = dims;
+    let mut window: std::collections::VecDeque<Vec<f32>> = std::collections::VecDeque::new();
     let mut candidates: Vec<(f32, usize, usize)> = Vec::new();
-    for (si, r) in responses.iter().enumerate() {
+    for step in 0..=sigmas.len() {
+        if let Some(&s) = sigmas.get(step) {
+            smooth = gaussian_smooth(
+                &smooth,
+                dims,
+                spacing_mm,
+                (s * s - smoothed_to * smoothed_to).sqrt(),
+            );
+            smoothed_to = s;
+            let mut l = laplacian(&smooth, dims, spacing_mm);
+            let norm = (s * s) as f32 * sign;
+            l.par_iter_mut().for_each(|v| *v *= norm);
+            window.push_back(l);
+            if window.len() > 3 {
+                window.pop_front();
+            }
+        } else if window.len() == 3 {
+            // The last scale has no larger neighbour: only the one below.
+            window.pop_front();
+        }
+        // The scale before this step, between its neighbours in `window`.
+        let Some(si) = step.checked_sub(1) else {
+            continue;
+        };
+        let own = if step == sigmas.len() {
+            window.len() - 1
+        } else {
+            window.len() - 2
+        };
+        let scales_held: Vec<&[f32]> = window.iter().map(|v| &v[..]).collect();
+        let r = scales_held[own];
         let radius = 3f64.sqrt() * sigmas[si];
         let floor = (CANDIDATE_SDS * noise_sigma * noise_gain(spacing_mm, sigmas[si])) as f32;
         let found: Vec<(f32, usize, usize)> = (1..nz.saturating_sub(1))
@@ -203,7 +222,7 @@ pub fn detect_lesions(
                         if v <= floor || (depth[c] as f64) < 0.5 * radius + p.margin_mm {
                             continue;
                         }
-                        if is_maximum(&responses, si, c, [nx, ny]) {
+                        if is_maximum(&scales_held, own, c, [nx, ny]) {
                             out.push((v, si, c));
                         }
                     }
@@ -279,22 +298,22 @@ fn scales(p: &LesionParams) -> Vec<f64> {
     out
 }
 
-/// Whether `responses[si][c]` is the largest of its 3 x 3 x 3 neighbours at
-/// its own scale and the scales beside.
-fn is_maximum(responses: &[Vec<f32>], si: usize, c: usize, [nx, ny]: [usize; 2]) -> bool {
-    let v = responses[si][c];
-    let lo = si.saturating_sub(1);
-    let hi = (si + 1).min(responses.len() - 1);
-    for r in &responses[lo..=hi] {
+/// Whether `scales[own][c]` is the largest of its 3 x 3 x 3 neighbours at
+/// its own scale and at the scales held beside it (`scales` adjacent, at
+/// most three).
+fn is_maximum(scales: &[&[f32]], own: usize, c: usize, [nx, ny]: [usize; 2]) -> bool {
+    let v = scales[own][c];
+    for (n, r) in scales.iter().enumerate() {
         for dk in -1isize..=1 {
             for dj in -1isize..=1 {
                 for di in -1isize..=1 {
                     let o = (c as isize + di + nx as isize * (dj + ny as isize * dk)) as usize;
-                    if o != c || !std::ptr::eq(r, &responses[si]) {
-                        let w = r[o];
-                        if w > v || (w == v && o < c) {
-                            return false;
-                        }
+                    if o == c && n == own {
+                        continue;
+                    }
+                    let w = r[o];
+                    if w > v || (w == v && o < c) {
+                        return false;
                     }
                 }
             }
@@ -459,7 +478,8 @@ fn measure(
         }
     }
     // Partial-volume weights over the voxels and one voxel around them.
-    let mut rim: std::collections::HashSet<usize> = seen.clone();
+    // Ordered, so the sums below do not depend on a hash's order.
+    let mut rim: std::collections::BTreeSet<usize> = seen.iter().copied().collect();
     for &o in &voxels {
         let p = [o % nx, (o / nx) % ny, o / (nx * ny)].map(|v| v as isize);
         for (a, s) in [(0, -1), (0, 1), (1, -1), (1, 1), (2, -1), (2, 1)] {

@@ -109,6 +109,10 @@ fn default_lesion_signal() -> f32 {
     0.35
 }
 
+fn is_default_lesion_signal(signal: &f32) -> bool {
+    *signal == default_lesion_signal()
+}
+
 /// The whole phantom, in its own frame (mm): base on z = 0, dome towards +z.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PhantomShape {
@@ -122,8 +126,13 @@ pub struct PhantomShape {
     pub markers: Vec<Marker>,
     /// The lesions.
     pub lesions: Vec<Lesion>,
-    /// The lesions' MR signal (tissue 0.55, gel 1.0).
-    #[serde(default = "default_lesion_signal")]
+    /// The lesions' MR signal (tissue 0.55, gel 1.0). Written only when not
+    /// the default, so the default phantom's files stay byte for byte what
+    /// they were before it could be set.
+    #[serde(
+        default = "default_lesion_signal",
+        skip_serializing_if = "is_default_lesion_signal"
+    )]
     pub lesion_signal: f32,
     /// The ellipsoid's rotation, computed once (ray casting asks per sample).
     #[serde(skip)]

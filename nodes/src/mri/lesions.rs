@@ -145,20 +145,20 @@ pub fn detect_lesions(
     }
     let tissue = fill_holes(mask, dims);
     let depth = distance_to_outside_mm(&tissue, dims, spacing_mm);
-    let interior: Vec<f32> = volume
-        .iter()
-        .zip(&depth)
-        .filter(|(_, d)| **d >= 2.0)
-        .map(|(v, _)| *v)
+    let stride = sample_stride(n);
+    let interior: Vec<f64> = (0..n)
+        .step_by(stride)
+        .filter(|&c| depth[c] >= 2.0)
+        .map(|c| volume[c] as f64)
         .collect();
     if interior.len() < 100 {
         return Err(format!(
             "the mask holds {} voxels 2 mm inside its outline: too little tissue to search",
-            interior.len()
+            interior.len() * stride
         ));
     }
-    let tissue_level = median(interior.iter().map(|&v| v as f64).collect());
-    let noise_sigma = noise_sd(volume, &depth, dims);
+    let tissue_level = median(interior);
+    let noise_sigma = noise_sd(volume, &depth, dims, stride);
     if noise_sigma <= 0.0 {
         return Err("the tissue shows no noise: its contrast has no unit".into());
     }
@@ -345,13 +345,22 @@ fn noise_gain(spacing_mm: [f64; 3], sigma_mm: f64) -> f64 {
             .sqrt()
 }
 
+/// The tissue's statistics are taken from every `sample_stride`-th voxel:
+/// all of them up to 4 M voxels (the phantom's scans), a few million of a
+/// real scan's tens of millions (a median needs no more, and a copy of
+/// them all would take gigabytes). Odd, so it does not follow the rows.
+fn sample_stride(voxels: usize) -> usize {
+    (voxels / 4_000_000) | 1
+}
+
 /// The tissue's noise SD: 1.4826 MAD of neighbouring voxels' differences
-/// along i (and j) over tissue at least 2 mm inside, over sqrt(2).
-fn noise_sd(volume: &[f32], depth: &[f32], dims: [usize; 3]) -> f64 {
+/// along i (and j) over tissue at least 2 mm inside, over sqrt(2), from every
+/// `stride`-th voxel.
+fn noise_sd(volume: &[f32], depth: &[f32], dims: [usize; 3], stride: usize) -> f64 {
     let [nx, ny, _] = dims;
     let mut diffs: Vec<f64> = Vec::new();
-    for (c, d) in depth.iter().enumerate() {
-        if *d < 2.0 {
+    for c in (0..depth.len()).step_by(stride) {
+        if depth[c] < 2.0 {
             continue;
         }
         let (i, j) = (c % nx, (c / nx) % ny);
@@ -666,6 +675,19 @@ mod tests {
         };
         assert_eq!(smallest(10.0), Some(2.0));
         assert_eq!(smallest(5.0), Some(3.0));
+    }
+
+    #[test]
+    fn every_voxel_is_sampled_up_to_4_m_and_an_odd_stride_beyond() {
+        assert_eq!(sample_stride(3_400_000), 1);
+        assert_eq!(sample_stride(4_000_000), 1);
+        for n in [8_000_000, 52_000_000, 200_000_000] {
+            let s = sample_stride(n);
+            assert!(
+                s % 2 == 1 && n / s <= 4_000_000 && n / s >= 2_000_000,
+                "{n}: {s}"
+            );
+        }
     }
 
     #[test]

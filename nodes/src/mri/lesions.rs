@@ -396,6 +396,9 @@ fn voxel_of(ijk: [f64; 3], dims: [usize; 3]) -> Option<usize> {
         .then(|| r[0] as usize + dims[0] * (r[1] as usize + dims[1] * r[2] as usize))
 }
 
+/// The six face steps (axis, direction) of a voxel.
+const FACE_STEPS: [(usize, isize); 6] = [(0, -1), (0, 1), (1, -1), (1, 1), (2, -1), (2, 1)];
+
 /// The candidate at voxel `c` with LoG radius `radius_mm` measured on the
 /// volume: its lesion (without `contrast_sigma` and `sigma_mm`) and its
 /// voxels (sorted) and their mean excess over the surround, or `None` when
@@ -442,7 +445,8 @@ fn measure(
             }
         }
     }
-    // The core holds at least the centre voxel.
+    // Too little tissue around to tell a surround (the core holds at least
+    // the centre voxel, unless that is not tissue).
     if shell.len() < 8 {
         return None;
     }
@@ -456,22 +460,25 @@ fn measure(
     // Lesion voxels: past half-way from the surround to the core, joined to
     // the centre (6-connected), within the shell's reach.
     let half = surround + 0.5 * contrast;
-    let inside_box =
-        |o: [isize; 3]| (0..3).all(|a| o[a] >= span[a].0 as isize && o[a] <= span[a].1 as isize);
-    let mut voxels = vec![c];
-    let mut seen = std::collections::HashSet::from([c]);
-    let mut stack = vec![at.map(|v| v as isize)];
     if value(c) < half {
         return None;
     }
-    while let Some(p) = stack.pop() {
-        for (a, s) in [(0, -1), (0, 1), (1, -1), (1, 1), (2, -1), (2, 1)] {
+    // The face neighbours of a voxel (i, j, k) within the box, with their
+    // indices.
+    let neighbours = |p: [isize; 3]| {
+        FACE_STEPS.iter().filter_map(move |&(a, s)| {
             let mut q = p;
             q[a] += s;
-            if !inside_box(q) {
-                continue;
-            }
-            let o = q[0] as usize + nx * (q[1] as usize + ny * q[2] as usize);
+            (0..3)
+                .all(|b| q[b] >= span[b].0 as isize && q[b] <= span[b].1 as isize)
+                .then(|| (q, q[0] as usize + nx * (q[1] as usize + ny * q[2] as usize)))
+        })
+    };
+    let mut voxels = vec![c];
+    let mut seen = std::collections::HashSet::from([c]);
+    let mut stack = vec![at.map(|v| v as isize)];
+    while let Some(p) = stack.pop() {
+        for (q, o) in neighbours(p) {
             if tissue[o] != 0 && value(o) >= half && seen.insert(o) {
                 if (0..3).any(|a| {
                     (q[a] == span[a].0 as isize && span[a].0 > 0)
@@ -488,16 +495,10 @@ fn measure(
     }
     // Partial-volume weights over the voxels and one voxel around them.
     // Ordered, so the sums below do not depend on a hash's order.
-    let mut rim: std::collections::BTreeSet<usize> = seen.iter().copied().collect();
+    let mut rim: std::collections::BTreeSet<usize> = voxels.iter().copied().collect();
     for &o in &voxels {
         let p = [o % nx, (o / nx) % ny, o / (nx * ny)].map(|v| v as isize);
-        for (a, s) in [(0, -1), (0, 1), (1, -1), (1, 1), (2, -1), (2, 1)] {
-            let mut q = p;
-            q[a] += s;
-            if inside_box(q) {
-                rim.insert(q[0] as usize + nx * (q[1] as usize + ny * q[2] as usize));
-            }
-        }
+        rim.extend(neighbours(p).map(|(_, n)| n));
     }
     let voxel_mm3 = spacing.iter().product::<f64>();
     let (mut weight, mut sum) = (0.0, [0.0f64; 3]);

@@ -12,7 +12,6 @@ pub mod ops;
 mod self_intersection;
 
 pub use components::{Connectivity, label_components};
-pub use filters::{distance_to_outside_mm, fill_holes, gaussian_smooth, laplacian};
 pub use intensity::{otsu_threshold, percentiles, stretch};
 pub use lesions::{FoundLesion, LesionParams, LesionSearch, Polarity, detect_lesions};
 pub use marching_cubes::{TriangleMesh, marching_cubes};

@@ -105,8 +105,10 @@ pub struct Lesion {
     pub radius_mm: f64,
 }
 
+/// The declared default of `ShapeParams::lesion_signal`, for truth files
+/// written before it could be set.
 fn default_lesion_signal() -> f32 {
-    0.35
+    ShapeParams::default().lesion_signal as f32
 }
 
 fn is_default_lesion_signal(signal: &f32) -> bool {

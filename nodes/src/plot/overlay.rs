@@ -109,6 +109,12 @@ mod tests {
 /// and 99th percentiles, with `mask` (same layout) tinted red over it: the
 /// Otsu foreground on an MRI slice. 8-bit RGB, `dims[0] x dims[1]`.
 pub fn mask_over_slice(volume: &[f32], mask: &[u8], dims: [usize; 3], k: usize) -> Vec<u8> {
+    grey_slice(volume, Some(mask), dims, k)
+}
+
+/// Slice `k` in grey between its 1st and 99th percentiles, `mask` (if any)
+/// tinted red: [`mask_over_slice`]'s drawing.
+fn grey_slice(volume: &[f32], mask: Option<&[u8]>, dims: [usize; 3], k: usize) -> Vec<u8> {
     let (w, h) = (dims[0], dims[1]);
     let slice = &volume[k * w * h..(k + 1) * w * h];
     let mut sorted: Vec<f32> = slice.iter().copied().filter(|v| v.is_finite()).collect();
@@ -123,7 +129,7 @@ pub fn mask_over_slice(volume: &[f32], mask: &[u8], dims: [usize; 3], k: usize) 
     let mut rgb = Vec::with_capacity(w * h * 3);
     for (i, &v) in slice.iter().enumerate() {
         let g = ((v - lo) / span).clamp(0.0, 1.0) * 255.0;
-        if mask[k * w * h + i] != 0 {
+        if mask.is_some_and(|m| m[k * w * h + i] != 0) {
             rgb.extend([(0.5 * g + 127.0) as u8, (0.5 * g) as u8, (0.5 * g) as u8]);
         } else {
             rgb.extend([g as u8; 3]);
@@ -149,9 +155,8 @@ pub fn circles_over_slices(
     let (w, h) = (dims[0], dims[1]);
     let width = w * panels.len();
     let mut rgb = vec![0u8; width * h * 3];
-    let none = vec![0u8; w * h * dims[2]];
     for (n, &(k, centre, radius)) in panels.iter().enumerate() {
-        let slice = mask_over_slice(volume, &none, dims, k.min(dims[2] - 1));
+        let slice = grey_slice(volume, None, dims, k.min(dims[2] - 1));
         for j in 0..h {
             for i in 0..w {
                 let at = 3 * (n * w + i + width * j);

@@ -97,33 +97,25 @@ impl RunOp for MapTargets {
 
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
         let transform = inputs.transform;
-        let (targets, port) = match self.source {
-            TargetSource::Given => (inputs.targets, "targets"),
-            TargetSource::Detected => (inputs.detected, "detected"),
+        let (targets, port, what) = match self.source {
+            TargetSource::Given => (inputs.targets, "targets", "given"),
+            TargetSource::Detected => (inputs.detected, "detected", "detected in the scan"),
         };
         let targets = targets.ok_or_else(|| {
+            let hint = match self.source {
+                TargetSource::Detected => " (e.g. in.detected = \"detect_lesions.markers\")",
+                TargetSource::Given => "",
+            };
             OpError::invalid(format!(
-                "source = \"{}\" maps the `{port}` input, which is not connected{}",
-                self.source.name(),
-                if port == "detected" {
-                    " (e.g. in.detected = \"detect_lesions.markers\")"
-                } else {
-                    ""
-                }
+                "source = \"{}\" maps the `{port}` input, which is not connected{hint}",
+                self.source.name()
             ))
         })?;
-        ctx.note(&match self.source {
-            TargetSource::Given => format!(
-                "{} targets given (input `targets`), ids {:?}",
-                targets.ids.len(),
-                targets.ids
-            ),
-            TargetSource::Detected => format!(
-                "{} targets detected in the scan (input `detected`), ids {:?}",
-                targets.ids.len(),
-                targets.ids
-            ),
-        });
+        ctx.note(format!(
+            "{} targets {what} (input `{port}`), ids {:?}",
+            targets.ids.len(),
+            targets.ids
+        ));
         let points = marker_points(&targets);
         let (mapped, frame) =
             map_targets(&points, &targets.frame, &transform).map_err(OpError::invalid)?;

@@ -3,6 +3,7 @@
 //! The point cloud helpers are in [`crate::cloud`].
 
 pub(crate) mod convert;
+mod deformable;
 pub(crate) mod figures;
 mod icp;
 mod marker_merge;
@@ -14,6 +15,9 @@ mod procrustes;
 mod target_error;
 mod targets;
 
+pub use deformable::{
+    DeformParams, Deformation, LandmarkPairs, Lattice, displacement_stats, fit_deformation,
+};
 pub use icp::{
     Anchors, IcpMethod, IcpParams, IcpResult, IcpStep, Kernel, icp, icp_anchored, normals_near,
 };

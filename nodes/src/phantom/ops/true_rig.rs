@@ -54,10 +54,10 @@ mod tests {
         // digits, not always the last bit).
         let close = |a: f64, b: f64| (a - b).abs() < 1e-9;
         let m = truth.rig.left_to_right;
-        for r in 0..3 {
-            assert!(close(out.rig.translation_mm[r], m[r][3]), "{r}");
-            for c in 0..3 {
-                assert!(close(out.rig.rotation[r][c], m[r][c]), "{r} {c}");
+        for (r, row) in m.iter().take(3).enumerate() {
+            assert!(close(out.rig.translation_mm[r], row[3]), "{r}");
+            for (c, &v) in row.iter().take(3).enumerate() {
+                assert!(close(out.rig.rotation[r][c], v), "{r} {c}");
             }
         }
         let (k, truth_k) = (out.rig.left.k, truth.rig.left.to_value().k);

@@ -50,6 +50,10 @@ use rayon::prelude::*;
 /// little to pull the inside towards the surfaces' mean.
 const MEMBRANE_SHARE: f64 = 0.0001;
 
+/// The columns of a field as a table: each node's position and its
+/// displacement, mm.
+pub const FIELD_COLUMNS: [&str; 6] = ["x_mm", "y_mm", "z_mm", "u_x_mm", "u_y_mm", "u_z_mm"];
+
 /// How [`fit_deformation`] fits.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DeformParams {
@@ -73,7 +77,7 @@ impl Default for DeformParams {
         DeformParams {
             spacing_mm: 10.0,
             stiffness_mm: 10.0,
-            landmark_weight: 0.5,
+            landmark_weight: 0.1,
             max_distance_mm: 15.0,
             trim_ratio: 0.9,
             steps_per_stage: 4,
@@ -145,6 +149,74 @@ impl Lattice {
             .iter()
             .map(|&(n, w)| self.displacements[n] * w)
             .sum()
+    }
+
+    /// Every node's position and displacement, one row each in the order
+    /// of [`Lattice::displacements`] (columns [`FIELD_COLUMNS`]).
+    pub fn to_rows(&self) -> Vec<[f64; 6]> {
+        let mut rows = Vec::with_capacity(self.displacements.len());
+        for k in 0..self.dims[2] {
+            for j in 0..self.dims[1] {
+                for i in 0..self.dims[0] {
+                    let p =
+                        self.origin + Vector3::new(i as f64, j as f64, k as f64) * self.spacing_mm;
+                    let u = self.displacements[self.node(i, j, k)];
+                    rows.push([p.x, p.y, p.z, u.x, u.y, u.z]);
+                }
+            }
+        }
+        rows
+    }
+
+    /// The lattice whose rows [`Lattice::to_rows`] gave; an error naming the
+    /// first row off a regular lattice.
+    pub fn from_rows(rows: &[[f64; 6]]) -> Result<Lattice, String> {
+        let at = |r: &[f64; 6]| Point3::new(r[0], r[1], r[2]);
+        if rows.len() < 8 {
+            return Err(format!("{} nodes: a lattice has at least 8", rows.len()));
+        }
+        let origin = at(&rows[0]);
+        let spacing_mm = rows[1][0] - rows[0][0];
+        if !(spacing_mm.is_finite() && spacing_mm > 0.0) {
+            return Err(format!(
+                "the first two nodes are {spacing_mm} mm apart along x"
+            ));
+        }
+        let run = |axis: usize, stride: usize| {
+            (1..)
+                .take_while(|&n| {
+                    n * stride < rows.len() && rows[n * stride][axis] > rows[(n - 1) * stride][axis]
+                })
+                .count()
+                + 1
+        };
+        let nx = run(0, 1);
+        let ny = run(1, nx);
+        let nz = rows.len() / (nx * ny);
+        if nx < 2 || ny < 2 || nz < 2 || nx * ny * nz != rows.len() {
+            return Err(format!(
+                "{} nodes do not make a lattice ({nx} x {ny} along x and y)",
+                rows.len()
+            ));
+        }
+        let mut lattice = Lattice {
+            origin,
+            spacing_mm,
+            dims: [nx, ny, nz],
+            displacements: Vec::with_capacity(rows.len()),
+        };
+        for (n, r) in rows.iter().enumerate() {
+            let (i, j, k) = (n % nx, (n / nx) % ny, n / (nx * ny));
+            let expected = origin + Vector3::new(i as f64, j as f64, k as f64) * spacing_mm;
+            if (at(r) - expected).norm() > 1e-6 * spacing_mm.max(1.0) {
+                return Err(format!(
+                    "node {n} is at ({:.3}, {:.3}, {:.3}) mm, off the lattice's ({:.3}, {:.3}, {:.3})",
+                    r[0], r[1], r[2], expected.x, expected.y, expected.z
+                ));
+            }
+            lattice.displacements.push(Vector3::new(r[3], r[4], r[5]));
+        }
+        Ok(lattice)
     }
 
     /// The lattice's node triples in a line (one spacing apart along an
@@ -324,7 +396,10 @@ pub fn fit_deformation(
                     / (triples.len() as f64 * p.spacing_mm.powi(4)),
             };
             let before = field.displacements.clone();
-            field.displacements = system.solve(&field.displacements);
+            // The stiffer stages only set the next one's start: a rougher
+            // solve serves them.
+            let tolerance = if stage + 1 < stages.len() { 1e-4 } else { 1e-6 };
+            field.displacements = system.solve(&field.displacements, tolerance);
             let change = before
                 .iter()
                 .zip(&field.displacements)
@@ -458,20 +533,36 @@ struct System<'a> {
 }
 
 impl System<'_> {
-    /// (A^T W A) u.
+    /// (A^T W A) u. The data rows in parallel chunks, each into a buffer
+    /// of its own (a row touches 8 nodes anywhere), summed in chunk order
+    /// (the same sums on any number of threads).
     fn apply(&self, u: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
-        let mut out = vec![Vector3::zeros(); self.nodes];
-        for r in self.surface {
-            let v: f64 = r
-                .stencil
-                .iter()
-                .map(|&(n, w)| w * r.normal.dot(&u[n]))
-                .sum();
-            let g = r.normal * (self.surface_weight * v);
-            for &(n, w) in &r.stencil {
-                out[n] += g * w;
-            }
-        }
+        const CHUNK: usize = 4096;
+        let mut out = self
+            .surface
+            .par_chunks(CHUNK)
+            .map(|rows| {
+                let mut part = vec![Vector3::zeros(); self.nodes];
+                for r in rows {
+                    let v: f64 = r
+                        .stencil
+                        .iter()
+                        .map(|&(n, w)| w * r.normal.dot(&u[n]))
+                        .sum();
+                    let g = r.normal * (self.surface_weight * v);
+                    for &(n, w) in &r.stencil {
+                        part[n] += g * w;
+                    }
+                }
+                part
+            })
+            .collect::<Vec<_>>()
+            .into_iter()
+            .reduce(|mut a, b| {
+                a.iter_mut().zip(&b).for_each(|(a, b)| *a += b);
+                a
+            })
+            .unwrap_or_else(|| vec![Vector3::zeros(); self.nodes]);
         for r in self.landmarks {
             let v: Vector3<f64> = r.stencil.iter().map(|&(n, w)| u[n] * w).sum();
             let g = r.across * (r.across * v) * self.landmark_weight;
@@ -540,9 +631,10 @@ impl System<'_> {
             .collect()
     }
 
-    /// Preconditioned conjugate gradients from `start`.
-    fn solve(&self, start: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
-        const MAX_ITERATIONS: usize = 1000;
+    /// Preconditioned conjugate gradients from `start`, until the residual
+    /// is `tolerance` of the right-hand side's norm.
+    fn solve(&self, start: &[Vector3<f64>], tolerance: f64) -> Vec<Vector3<f64>> {
+        const MAX_ITERATIONS: usize = 300;
         let dot = |a: &[Vector3<f64>], b: &[Vector3<f64>]| -> f64 {
             a.iter().zip(b).map(|(x, y)| x.dot(y)).sum()
         };
@@ -556,7 +648,7 @@ impl System<'_> {
         let mut d = z.clone();
         let mut rz = dot(&r, &z);
         for _ in 0..MAX_ITERATIONS {
-            if dot(&r, &r).sqrt() <= 1e-8 * norm_b {
+            if dot(&r, &r).sqrt() <= tolerance * norm_b {
                 break;
             }
             let ad = self.apply(&d);
@@ -791,5 +883,13 @@ mod tests {
         }
         let p = Point3::new(13.3, 7.9, 18.2);
         assert!((l.displacement(&p) - f(&p)).norm() < 1e-9);
+        // Through its table and back.
+        let mut rows = l.to_rows();
+        assert_eq!(Lattice::from_rows(&rows).unwrap(), l);
+        rows[7][1] += 0.5;
+        let e = Lattice::from_rows(&rows).unwrap_err();
+        assert!(e.contains("node 7"), "{e}");
+        let e = Lattice::from_rows(&rows[..5]).unwrap_err();
+        assert!(e.contains("5 nodes"), "{e}");
     }
 }

@@ -228,3 +228,66 @@ mod tests {
         assert!((attribute("ry") - 24.75).abs() < 0.1, "{}", attribute("ry"));
     }
 }
+
+/// The skin's samples seen along each axis of their frame, each coloured by
+/// how far a deformation moved it (white none, dark red the peak), with a
+/// tick every `step` of the colour scale.
+pub(crate) fn field_on_skin_svg(
+    points: &[Point3<f64>],
+    displacements: &[Vector3<f64>],
+    frame: &str,
+) -> String {
+    use std::fmt::Write;
+    const PANEL: f64 = 260.0;
+    let peak = displacements.iter().map(|u| u.norm()).fold(0.0, f64::max);
+    let (width, height) = (3.0 * PANEL + 40.0, PANEL + 70.0);
+    let mut svg = format!(
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" font-family="sans-serif" font-size="12">"#
+    );
+    let _ = write!(
+        svg,
+        r#"<text x="10" y="18">The deformation's displacement on the skin both see ({frame}, mm): white 0, dark red {peak:.2} mm</text>"#
+    );
+    let mut lo = Point3::from([f64::INFINITY; 3]);
+    let mut hi = Point3::from([f64::NEG_INFINITY; 3]);
+    for p in points {
+        lo = lo.inf(p);
+        hi = hi.sup(p);
+    }
+    let span = (hi - lo).max().max(1e-9);
+    let scale = (PANEL - 20.0) / span;
+    // At most about 4,000 dots: every k-th sample.
+    let every = points.len().div_ceil(4000).max(1);
+    for (col, (a, b, la, lb)) in [
+        (0usize, 1usize, "x", "y"),
+        (0, 2, "x", "z"),
+        (1, 2, "y", "z"),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let x0 = 20.0 + col as f64 * PANEL;
+        let _ = write!(
+            svg,
+            r##"<rect x="{x0}" y="30" width="{w}" height="{w}" fill="none" stroke="#ccc"/><text x="{tx}" y="{ty}">{la} right, {lb} down</text>"##,
+            w = PANEL - 10.0,
+            tx = x0 + 4.0,
+            ty = PANEL + 40.0
+        );
+        for (p, u) in points.iter().zip(displacements).step_by(every) {
+            let t = if peak > 0.0 { u.norm() / peak } else { 0.0 };
+            let (r, g) = (255.0 - 115.0 * t, 255.0 * (1.0 - t));
+            let _ = write!(
+                svg,
+                r#"<circle cx="{:.1}" cy="{:.1}" r="1.6" fill="rgb({:.0},{:.0},{:.0})"/>"#,
+                x0 + 5.0 + (p[a] - lo[a]) * scale,
+                35.0 + (p[b] - lo[b]) * scale,
+                r,
+                g,
+                g
+            );
+        }
+    }
+    svg.push_str("</svg>");
+    svg
+}

@@ -16,7 +16,8 @@ mod target_error;
 mod targets;
 
 pub use deformable::{
-    DeformParams, Deformation, LandmarkPairs, Lattice, displacement_stats, fit_deformation,
+    DeformParams, Deformation, FIELD_COLUMNS, LandmarkPairs, Lattice, displacement_stats,
+    fit_deformation,
 };
 pub use icp::{
     Anchors, IcpMethod, IcpParams, IcpResult, IcpStep, Kernel, icp, icp_anchored, normals_near,
@@ -45,6 +46,7 @@ pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.add::<ops::MatchMarkers>()?;
     registry.add::<ops::Procrustes>()?;
     registry.add::<ops::Icp>()?;
+    registry.add::<ops::Deformable>()?;
     registry.add::<ops::Evaluate>()?;
     registry.add::<ops::MapTargets>()?;
     registry.add::<ops::Multiview>()?;

@@ -5,7 +5,10 @@ use crate::eval::convert::load_truth;
 use crate::eval::{target_errors, true_mri_to_camera};
 use crate::register::convert::{marker_points, markers_value, pose_covariance_from_table};
 use crate::register::figures::error_ellipses_svg;
-use crate::register::{error_bound_mm, map_targets, mapped_target_covariances, predict_marker_tre};
+use crate::register::{
+    FIELD_COLUMNS, Lattice, error_bound_mm, map_targets, mapped_target_covariances,
+    predict_marker_tre,
+};
 use fusegraph_engine::figure::FigureData;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Markers, PathValue, Table, Transform};
@@ -15,7 +18,8 @@ use nalgebra::{Matrix3, Point3};
 #[derive(Op)]
 // 3: each target's predicted error from the registration's covariance.
 // 5: the targets given or detected in the scan.
-#[op(name = "register.map_targets", version = 5)]
+// 6: targets moved by a deformation.
+#[op(name = "register.map_targets", version = 6)]
 pub struct MapTargets {
     /// Phantom view whose left camera is camera_left
     #[param(default = 0, min = 0)]
@@ -54,6 +58,10 @@ pub struct MapTargetsInputs {
     /// The registration's pose covariance (register.icp's `covariance`):
     /// each target's predicted error, its covariance and 95 % bound
     pub covariance: Option<Arc<Table>>,
+    /// A displacement field in the targets' frame (register.deformable's
+    /// `field`): each target moves by it before the transform maps it; its
+    /// truth is still taken from where it was scanned
+    pub deformation: Option<Arc<Table>>,
 }
 
 #[derive(Outputs)]
@@ -117,8 +125,12 @@ impl RunOp for MapTargets {
             targets.ids
         ));
         let points = marker_points(&targets);
+        let moved = match &inputs.deformation {
+            Some(table) => deformed(ctx, &targets.ids, &points, table)?,
+            None => points.clone(),
+        };
         let (mapped, frame) =
-            map_targets(&points, &targets.frame, &transform).map_err(OpError::invalid)?;
+            map_targets(&moved, &targets.frame, &transform).map_err(OpError::invalid)?;
         ctx.metric("targets", mapped.len() as f64);
         let covariances = match &inputs.covariance {
             Some(table) if table.row_count() == 0 => {
@@ -128,7 +140,7 @@ impl RunOp for MapTargets {
             Some(table) => {
                 let pose = pose_covariance_from_table(table)
                     .map_err(|e| OpError::invalid(format!("covariance: {e}")))?;
-                mapped_target_covariances(&points, &targets.frame, &transform, &pose)
+                mapped_target_covariances(&moved, &targets.frame, &transform, &pose)
                     .map_err(OpError::invalid)?
             }
             None => Vec::new(),
@@ -178,6 +190,38 @@ impl RunOp for MapTargets {
             errors,
         })
     }
+}
+
+/// `points` (of targets `ids`) moved by the field in `table`
+/// (register.deformable's columns), each one's move reported as
+/// `target_<id>_deformation_mm`.
+fn deformed(
+    ctx: &mut RunCtx,
+    ids: &[u32],
+    points: &[Point3<f64>],
+    table: &Table,
+) -> Result<Vec<Point3<f64>>, OpError> {
+    let columns: Vec<Vec<f64>> = FIELD_COLUMNS
+        .iter()
+        .map(|c| {
+            table.column(c).ok_or_else(|| {
+                OpError::invalid(format!(
+                    "deformation: no column `{c}` (give register.deformable's field: {})",
+                    FIELD_COLUMNS.join(", ")
+                ))
+            })
+        })
+        .collect::<Result<_, _>>()?;
+    let rows: Vec<[f64; 6]> = (0..table.row_count())
+        .map(|r| std::array::from_fn(|c| columns[c][r]))
+        .collect();
+    let field =
+        Lattice::from_rows(&rows).map_err(|e| OpError::invalid(format!("deformation: {e}")))?;
+    let moved: Vec<Point3<f64>> = points.iter().map(|p| p + field.displacement(p)).collect();
+    for ((id, p), m) in ids.iter().zip(points).zip(&moved) {
+        ctx.metric(&format!("target_{id}_deformation_mm"), (m - p).norm());
+    }
+    Ok(moved)
 }
 
 /// Each target's observed error against the truth (`target_<id>_error_mm`,
@@ -296,6 +340,7 @@ mod tests {
             landmarks_source: Some(markers(&camera, camera_frame)),
             landmarks_target: Some(markers(&MRI_MARKERS, "mri_lps")),
             covariance: None,
+            deformation: None,
         }
     }
 
@@ -356,6 +401,40 @@ mod tests {
         assert!(
             e.to_string()
                 .contains("covariance: a pose covariance has the columns"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_deformation_moves_each_target_before_the_transform() {
+        // A field shifting everything 2 mm along +x (a lattice over the
+        // targets), the identity transform: the targets land 2 mm along x.
+        let pts = [
+            nalgebra::Point3::new(-10.0, -10.0, 0.0),
+            nalgebra::Point3::new(10.0, 10.0, 130.0),
+        ];
+        let mut field = Lattice::covering(&pts, 20.0, 10.0);
+        for u in &mut field.displacements {
+            *u = nalgebra::Vector3::new(2.0, 0.0, 0.0);
+        }
+        let table = Table::new(
+            FIELD_COLUMNS.iter().map(|c| c.to_string()).collect(),
+            field.to_rows().concat(),
+        )
+        .unwrap();
+        let mut i = inputs("camera_left");
+        i.deformation = Some(Arc::new(table));
+        let mut ctx = RunCtx::new("targets", &std::env::temp_dir());
+        let out = GIVEN.run(i, &mut ctx).unwrap();
+        assert!((out.targets.positions_mm[0] - 2.0).abs() < 1e-9);
+        assert!((out.targets.positions_mm[5] - 120.0).abs() < 1e-9);
+        assert!((ctx.metrics()["target_1_deformation_mm"] - 2.0).abs() < 1e-9);
+        // Not a field: refused, naming the port.
+        let mut i = inputs("camera_left");
+        i.deformation = Some(Arc::new(Table::new(vec!["a".into()], vec![1.0]).unwrap()));
+        let e = GIVEN.run(i, &mut ctx).map(|_| ()).unwrap_err();
+        assert!(
+            e.to_string().contains("deformation: no column `x_mm`"),
             "{e}"
         );
     }

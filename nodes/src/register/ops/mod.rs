@@ -1,5 +1,6 @@
 //! The `register.*` ops: one file per op, each its declaration and thin adapter.
 
+mod deformable;
 mod evaluate;
 mod icp;
 mod map_targets;
@@ -7,6 +8,7 @@ mod match_markers;
 mod multiview;
 mod procrustes;
 
+pub use deformable::{DeformMode, Deformable, DeformableInputs, DeformableOutputs};
 pub use evaluate::{Evaluate, EvaluateInputs, EvaluateOutputs};
 pub use icp::{Icp, IcpInputs, IcpKernel, IcpOutputs};
 pub use map_targets::{MapTargets, MapTargetsInputs, MapTargetsOutputs, TargetSource};

@@ -1,0 +1,234 @@
+//! `register.deformable`: after a rigid registration, the smooth field that
+//! takes the scanned skin and markers onto those seen now.
+
+use crate::cloud::convert::{cloud_normals, cloud_points};
+use crate::register::convert::{marker_points, transform_isometry};
+use crate::register::figures::field_on_skin_svg;
+use crate::register::{
+    DeformParams, FIELD_COLUMNS, LandmarkPairs, Lattice, displacement_stats, fit_deformation,
+};
+use fusegraph_engine::figure::FigureData;
+use fusegraph_engine::typed::prelude::*;
+use fusegraph_engine::value::{Markers, PointCloud, Table, Transform};
+use nalgebra::{Point3, Vector3};
+
+/// A smooth displacement field (nonrigid ICP on a lattice, bending-regularised) taking the scanned skin and markers onto those seen now, after the rigid registration; zero (the rigid result kept) where the data do not support one
+#[derive(Op)]
+#[op(name = "register.deformable", version = 1)]
+pub struct Deformable {
+    /// deformable: fit the field; rigid: give a zero field (the rigid result), e.g. --set deform.mode=rigid
+    #[param(default = DeformMode::Deformable)]
+    pub mode: DeformMode,
+    /// Bending length L: a bend of the field of 1 / L costs as much as a surface residual of L (larger: stiffer, smoother)
+    #[param(default = 10.0, unit = "mm", min = 0.5, max = 1000.0)]
+    pub stiffness_mm: f64,
+    /// Spacing of the field's lattice
+    #[param(default = 10.0, unit = "mm", min = 2.0, max = 100.0)]
+    pub spacing_mm: f64,
+    /// The markers' total weight against the whole skin's (they pin a slide along the skin the surfaces cannot see)
+    #[param(default = 0.1, min = 0.0)]
+    pub landmark_weight: f64,
+    /// Pairs of skin points farther apart than this are left out
+    #[param(default = 15.0, unit = "mm", min = 0.1)]
+    pub max_distance_mm: f64,
+    /// Share of the closest skin pairs kept each step
+    #[param(default = 0.9, min = 0.05, max = 1.0)]
+    pub trim_ratio: f64,
+    /// A field that explains less than this of the skin's RMS residual after the rigid fit (sqrt(rigid^2 - after^2)) is not applied: no motion beyond what noise and a rigid fit leave
+    #[param(default = 0.2, unit = "mm", min = 0.0)]
+    pub min_explained_mm: f64,
+    /// Each skin is thinned to at most this many points (every k-th) for the fit
+    #[param(default = 20000, min = 100)]
+    pub max_points: usize,
+    /// A field whose peak over the skin exceeds this is not trusted (the rigid result is kept)
+    #[param(default = 30.0, unit = "mm", min = 0.0)]
+    pub max_motion_mm: f64,
+    /// Fewer matched markers than this: no field (the surfaces alone cannot pin a slide along the skin)
+    #[param(default = 4, min = 0)]
+    pub min_landmarks: usize,
+}
+
+/// Whether a field is fitted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Choice)]
+pub enum DeformMode {
+    /// Fit the field.
+    Deformable,
+    /// A zero field: the rigid registration alone.
+    Rigid,
+}
+
+#[derive(Inputs)]
+pub struct DeformableInputs {
+    /// The rigid registration, `source` frame -> `target` frame (register.icp's transform)
+    pub transform: Arc<Transform>,
+    /// The skin seen now (e.g. the merged camera cloud), in the transform's from frame
+    pub source: Arc<PointCloud>,
+    /// The scanned skin with normals (e.g. the MRI cloud), in the transform's to frame
+    pub target: Arc<PointCloud>,
+    /// Markers seen now (e.g. match_markers.source), paired in order with `landmarks_target`
+    pub landmarks_source: Option<Arc<Markers>>,
+    /// The same markers in the scan
+    pub landmarks_target: Option<Arc<Markers>>,
+}
+
+#[derive(Outputs)]
+pub struct DeformableOutputs {
+    /// The field in the scan's frame: each lattice node's position and displacement (x_mm, y_mm, z_mm, u_x_mm, u_y_mm, u_z_mm): a scanned point at p lies now at p + u(p), before the rigid transform's inverse (register.map_targets' `deformation`); all zero where no field is applied
+    pub field: Table,
+}
+
+impl RunOp for Deformable {
+    type Inputs = DeformableInputs;
+    type Outputs = DeformableOutputs;
+
+    fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
+        let t = &inputs.transform;
+        if t.from != inputs.source.frame || t.to != inputs.target.frame {
+            return Err(OpError::invalid(format!(
+                "the transform maps `{}` -> `{}`, but the clouds are `{}` (source) and `{}` (target)",
+                t.from, t.to, inputs.source.frame, inputs.target.frame
+            )));
+        }
+        let scan = thinned(cloud_points(&inputs.target), self.max_points);
+        let normals = cloud_normals(&inputs.target).ok_or_else(|| {
+            OpError::invalid(
+                "the target (scanned) cloud has no normals: the fit measures across them",
+            )
+        })?;
+        let normals = thinned(normals, self.max_points);
+        let iso = transform_isometry(t);
+        let now: Vec<Point3<f64>> = thinned(cloud_points(&inputs.source), self.max_points)
+            .iter()
+            .map(|p| iso * p)
+            .collect();
+        let landmarks = landmark_points(&inputs, &iso)?;
+        let params = DeformParams {
+            spacing_mm: self.spacing_mm,
+            stiffness_mm: self.stiffness_mm,
+            landmark_weight: self.landmark_weight,
+            max_distance_mm: self.max_distance_mm,
+            trim_ratio: self.trim_ratio,
+            ..DeformParams::default()
+        };
+        let zero = || Lattice::covering(&scan, self.spacing_mm, 2.0 * self.spacing_mm);
+        let pairs = landmarks.as_ref().map_or(0, |(a, _)| a.len());
+        let field = if self.mode == DeformMode::Rigid {
+            ctx.note("mode = rigid: no field; the targets follow the rigid registration");
+            zero()
+        } else if pairs < self.min_landmarks {
+            ctx.note(format!(
+                "{pairs} matched markers, under min_landmarks = {}: the skin alone cannot pin a \
+                 slide along itself, so no field is fitted; the rigid result stands",
+                self.min_landmarks
+            ));
+            zero()
+        } else {
+            let d = fit_deformation(
+                &scan,
+                &normals,
+                &now,
+                landmarks
+                    .as_ref()
+                    .map(|(a, b)| LandmarkPairs { scan: b, now: a }),
+                &params,
+            )
+            .map_err(OpError::invalid)?;
+            let seen: Vec<Point3<f64>> = d.seen.iter().map(|&j| scan[j]).collect();
+            let (peak, rms) = displacement_stats(&d.field, &seen);
+            ctx.metric("peak_displacement_mm", peak);
+            ctx.metric("rms_displacement_mm", rms);
+            ctx.metric("rigid_residual_mm", d.rigid_residual_mm);
+            ctx.metric("residual_mm", d.residual_mm);
+            ctx.metric("rigid_landmark_residual_mm", d.rigid_landmark_residual_mm);
+            ctx.metric("landmark_residual_mm", d.landmark_residual_mm);
+            let shifts: Vec<Vector3<f64>> = seen.iter().map(|p| d.field.displacement(p)).collect();
+            ctx.figure(
+                "field",
+                "How far the deformation moved each point of the skin both see (scan frame), seen along each axis",
+                FigureData::Svg(field_on_skin_svg(&seen, &shifts, &inputs.target.frame)),
+            )?;
+            let explained = (d.rigid_residual_mm.powi(2) - d.residual_mm.powi(2))
+                .max(0.0)
+                .sqrt();
+            ctx.metric("explained_residual_mm", explained);
+            if explained < self.min_explained_mm {
+                ctx.note(format!(
+                    "the field explains {explained:.2} mm RMS of the skin's residual after the \
+                     rigid fit ({:.2} -> {:.2} mm), under min_explained_mm = {}: no motion \
+                     beyond what noise and a rigid fit leave, so it is not applied; the rigid \
+                     result stands",
+                    d.rigid_residual_mm, d.residual_mm, self.min_explained_mm
+                ));
+                zero()
+            } else if peak > self.max_motion_mm {
+                ctx.note(format!(
+                    "the field's peak is {peak:.1} mm, over max_motion_mm = {}: more than the \
+                     data support, so it is not applied; the rigid result stands",
+                    self.max_motion_mm
+                ));
+                zero()
+            } else {
+                ctx.note(format!(
+                    "the tissue moved: a field of {rms:.2} mm RMS ({peak:.2} mm peak) takes the \
+                     skin from {:.2} to {:.2} mm RMS residual; the targets' error bars are the \
+                     rigid registration's and do not count the field's own error",
+                    d.rigid_residual_mm, d.residual_mm
+                ));
+                d.field
+            }
+        };
+        ctx.metric(
+            "applied",
+            field.displacements.iter().any(|u| u.norm() > 0.0) as u8 as f64,
+        );
+        let rows: Vec<f64> = field.to_rows().concat();
+        let field = Table::new(FIELD_COLUMNS.iter().map(|c| c.to_string()).collect(), rows)
+            .map_err(|e| OpError::invalid(e.0))?;
+        Ok(DeformableOutputs { field })
+    }
+}
+
+/// Every k-th of `items`, k the smallest that leaves at most `max`.
+fn thinned<T: Copy>(items: Vec<T>, max: usize) -> Vec<T> {
+    let every = items.len().div_ceil(max.max(1)).max(1);
+    if every == 1 {
+        items
+    } else {
+        items.into_iter().step_by(every).collect()
+    }
+}
+
+/// Landmark positions: those seen now (moved into the scan's frame), and
+/// the scan's, paired in order.
+type LandmarkPositions = (Vec<Point3<f64>>, Vec<Point3<f64>>);
+
+/// The landmark pairs (seen now, moved by the rigid transform into the
+/// scan's frame; the scan's), or none.
+fn landmark_points(
+    inputs: &DeformableInputs,
+    iso: &nalgebra::Isometry3<f64>,
+) -> Result<Option<LandmarkPositions>, OpError> {
+    match (&inputs.landmarks_source, &inputs.landmarks_target) {
+        (None, None) => Ok(None),
+        (Some(a), Some(b)) => {
+            if a.frame != inputs.source.frame || b.frame != inputs.target.frame {
+                return Err(OpError::invalid(format!(
+                    "landmarks are in `{}` and `{}`, the clouds in `{}` and `{}`",
+                    a.frame, b.frame, inputs.source.frame, inputs.target.frame
+                )));
+            }
+            let (a, b) = (marker_points(a), marker_points(b));
+            if a.len() != b.len() {
+                return Err(OpError::invalid(format!(
+                    "{} source landmarks and {} target landmarks: they pair in order",
+                    a.len(),
+                    b.len()
+                )));
+            }
+            Ok(Some((a.iter().map(|p| iso * p).collect(), b)))
+        }
+        _ => Err(OpError::invalid(
+            "connect both landmarks_source and landmarks_target, or neither",
+        )),
+    }
+}

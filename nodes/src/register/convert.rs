@@ -4,10 +4,48 @@
 use super::Similarity;
 use crate::calib::ParameterCovariance;
 use crate::camera::{isometry_from_matrix, isometry_to_matrix};
-use fusegraph_engine::value::{Table, Transform};
-use nalgebra::{Isometry3, Matrix6};
+use fusegraph_engine::OpError;
+use fusegraph_engine::value::{Markers, Table, Transform};
+use nalgebra::{Isometry3, Matrix6, Point3};
 
 pub(crate) use crate::cloud::convert::{marker_points, markers_value};
+
+/// Landmarks in a source frame and their matches in a target frame, mm.
+pub(crate) type MatchedLandmarks = (Vec<Point3<f64>>, Vec<Point3<f64>>);
+
+/// The landmark pairs of two optional inputs, checked: both sides or
+/// neither, in the clouds' frames (`source_frame`, `target_frame`), one to
+/// one.
+pub(crate) fn landmark_pairs(
+    source: Option<&Markers>,
+    target: Option<&Markers>,
+    source_frame: &str,
+    target_frame: &str,
+) -> Result<Option<MatchedLandmarks>, OpError> {
+    match (source, target) {
+        (None, None) => Ok(None),
+        (Some(a), Some(b)) => {
+            if a.frame != source_frame || b.frame != target_frame {
+                return Err(OpError::invalid(format!(
+                    "landmarks are in `{}` and `{}`, the clouds in `{source_frame}` and `{target_frame}`",
+                    a.frame, b.frame
+                )));
+            }
+            let (a, b) = (marker_points(a), marker_points(b));
+            if a.len() != b.len() {
+                return Err(OpError::invalid(format!(
+                    "{} source landmarks and {} target landmarks: they pair in order",
+                    a.len(),
+                    b.len()
+                )));
+            }
+            Ok(Some((a, b)))
+        }
+        _ => Err(OpError::invalid(
+            "connect both landmarks_source and landmarks_target, or neither",
+        )),
+    }
+}
 
 /// A Transform value's rigid part (its `from` frame -> its `to` frame).
 pub(crate) fn transform_isometry(t: &Transform) -> Isometry3<f64> {

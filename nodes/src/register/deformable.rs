@@ -684,13 +684,13 @@ pub fn displacement_stats(field: &Lattice, points: &[Point3<f64>]) -> (f64, f64)
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     /// A dome: a sphere of radius 70 mm cut 25 mm below its centre (apex 95
     /// mm above the table z = 0), its skin sampled about every `step_mm`,
     /// with outward normals.
-    fn dome(step_mm: f64) -> (Vec<Point3<f64>>, Vec<Vector3<f64>>) {
+    pub(crate) fn dome(step_mm: f64) -> (Vec<Point3<f64>>, Vec<Vector3<f64>>) {
         let (r, c) = (70.0, Point3::new(0.0, 0.0, 25.0));
         let mut points = Vec::new();
         let mut normals = Vec::new();

@@ -2,7 +2,7 @@
 //! takes the scanned skin and markers onto those seen now.
 
 use crate::cloud::convert::{cloud_normals, cloud_points};
-use crate::register::convert::{marker_points, transform_isometry};
+use crate::register::convert::{MatchedLandmarks, landmark_pairs, transform_isometry};
 use crate::register::figures::field_on_skin_svg;
 use crate::register::{
     DeformParams, FIELD_COLUMNS, LandmarkPairs, Lattice, displacement_stats, fit_deformation,
@@ -198,37 +198,142 @@ fn thinned<T: Copy>(items: Vec<T>, max: usize) -> Vec<T> {
     }
 }
 
-/// Landmark positions: those seen now (moved into the scan's frame), and
-/// the scan's, paired in order.
-type LandmarkPositions = (Vec<Point3<f64>>, Vec<Point3<f64>>);
-
 /// The landmark pairs (seen now, moved by the rigid transform into the
 /// scan's frame; the scan's), or none.
 fn landmark_points(
     inputs: &DeformableInputs,
     iso: &nalgebra::Isometry3<f64>,
-) -> Result<Option<LandmarkPositions>, OpError> {
-    match (&inputs.landmarks_source, &inputs.landmarks_target) {
-        (None, None) => Ok(None),
-        (Some(a), Some(b)) => {
-            if a.frame != inputs.source.frame || b.frame != inputs.target.frame {
-                return Err(OpError::invalid(format!(
-                    "landmarks are in `{}` and `{}`, the clouds in `{}` and `{}`",
-                    a.frame, b.frame, inputs.source.frame, inputs.target.frame
-                )));
-            }
-            let (a, b) = (marker_points(a), marker_points(b));
-            if a.len() != b.len() {
-                return Err(OpError::invalid(format!(
-                    "{} source landmarks and {} target landmarks: they pair in order",
-                    a.len(),
-                    b.len()
-                )));
-            }
-            Ok(Some((a.iter().map(|p| iso * p).collect(), b)))
+) -> Result<Option<MatchedLandmarks>, OpError> {
+    let pairs = landmark_pairs(
+        inputs.landmarks_source.as_deref(),
+        inputs.landmarks_target.as_deref(),
+        &inputs.source.frame,
+        &inputs.target.frame,
+    )?;
+    Ok(pairs.map(|(now, scan)| (now.iter().map(|p| iso * p).collect(), scan)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::register::deformable::tests::dome;
+
+    fn cloud(
+        points: &[Point3<f64>],
+        normals: Option<&[Vector3<f64>]>,
+        frame: &str,
+    ) -> Arc<PointCloud> {
+        let flat = |v: &mut dyn Iterator<Item = [f64; 3]>| -> Vec<f32> {
+            v.flat_map(|p| p.map(|c| c as f32)).collect()
+        };
+        let p = flat(&mut points.iter().map(|p| [p.x, p.y, p.z]));
+        let n = normals.map(|n| flat(&mut n.iter().map(|v| [v.x, v.y, v.z])).into());
+        Arc::new(PointCloud::new(p, None, n, frame).unwrap())
+    }
+
+    fn markers(points: &[Point3<f64>], frame: &str) -> Arc<Markers> {
+        let flat: Vec<f64> = points.iter().flat_map(|p| [p.x, p.y, p.z]).collect();
+        let ids: Vec<u32> = (0..points.len() as u32).collect();
+        Arc::new(Markers::new(flat, ids, frame).unwrap())
+    }
+
+    /// The dome scanned, and seen again `shift` (mm) along x above 30 mm
+    /// (a shear the rigid transform, the identity, leaves), with `landmarks`
+    /// markers on both.
+    fn inputs(shift: f64, landmarks: usize) -> DeformableInputs {
+        let (scan, normals) = dome(4.0);
+        let moved =
+            |p: &Point3<f64>| p + Vector3::new(shift * (p.z / 95.0).clamp(0.0, 1.0), 0.0, 0.0);
+        let now: Vec<Point3<f64>> = scan.iter().filter(|p| p.z > 30.0).map(moved).collect();
+        let marks: Vec<Point3<f64>> = scan.iter().step_by(37).take(landmarks).copied().collect();
+        let seen: Vec<Point3<f64>> = marks.iter().map(moved).collect();
+        DeformableInputs {
+            transform: Arc::new(Transform::identity("camera_left", "mri_lps")),
+            source: cloud(&now, None, "camera_left"),
+            target: cloud(&scan, Some(&normals), "mri_lps"),
+            landmarks_source: Some(markers(&seen, "camera_left")),
+            landmarks_target: Some(markers(&marks, "mri_lps")),
         }
-        _ => Err(OpError::invalid(
-            "connect both landmarks_source and landmarks_target, or neither",
-        )),
+    }
+
+    fn op() -> Deformable {
+        Deformable {
+            mode: DeformMode::Deformable,
+            stiffness_mm: 10.0,
+            spacing_mm: 10.0,
+            landmark_weight: 0.1,
+            max_distance_mm: 15.0,
+            trim_ratio: 0.9,
+            min_explained_mm: 0.2,
+            max_motion_mm: 30.0,
+            max_points: 20000,
+            min_landmarks: 4,
+        }
+    }
+
+    fn largest(field: &Table) -> f64 {
+        let rows: Vec<[f64; 6]> = (0..field.row_count())
+            .map(|r| std::array::from_fn(|c| field.row(r)[c]))
+            .collect();
+        Lattice::from_rows(&rows)
+            .unwrap()
+            .displacements
+            .iter()
+            .map(|u| u.norm())
+            .fold(0.0, f64::max)
+    }
+
+    #[test]
+    fn a_moved_skin_gets_a_field_and_an_unmoved_one_or_a_rigid_mode_none() {
+        let mut ctx = RunCtx::new("deform", &std::env::temp_dir());
+        let out = op().run(inputs(6.0, 12), &mut ctx).unwrap();
+        assert_eq!(ctx.metrics()["applied"], 1.0);
+        assert!(largest(&out.field) > 3.0);
+        assert!(ctx.notes().iter().any(|n| n.contains("the tissue moved")));
+        let mut ctx = RunCtx::new("deform", &std::env::temp_dir());
+        let out = op().run(inputs(0.0, 12), &mut ctx).unwrap();
+        assert_eq!((ctx.metrics()["applied"], largest(&out.field)), (0.0, 0.0));
+        assert!(
+            ctx.notes().iter().any(|n| n.contains("min_explained_mm")),
+            "{:?}",
+            ctx.notes()
+        );
+        let mut ctx = RunCtx::new("deform", &std::env::temp_dir());
+        let rigid = Deformable {
+            mode: DeformMode::Rigid,
+            ..op()
+        };
+        let out = rigid.run(inputs(6.0, 12), &mut ctx).unwrap();
+        assert_eq!(largest(&out.field), 0.0);
+    }
+
+    #[test]
+    fn too_few_markers_keep_the_rigid_result_and_say_so() {
+        let mut ctx = RunCtx::new("deform", &std::env::temp_dir());
+        let out = op().run(inputs(6.0, 3), &mut ctx).unwrap();
+        assert_eq!(largest(&out.field), 0.0);
+        assert!(
+            ctx.notes()
+                .iter()
+                .any(|n| n.contains("3 matched markers, under min_landmarks = 4"))
+        );
+    }
+
+    #[test]
+    fn wrong_frames_and_a_scan_without_normals_are_refused_by_name() {
+        let mut ctx = RunCtx::new("deform", &std::env::temp_dir());
+        let mut i = inputs(6.0, 12);
+        i.transform = Arc::new(Transform::identity("world", "mri_lps"));
+        let e = op().run(i, &mut ctx).map(|_| ()).unwrap_err().to_string();
+        assert!(e.contains("maps `world` -> `mri_lps`"), "{e}");
+        let mut i = inputs(6.0, 12);
+        let (scan, _) = dome(4.0);
+        i.target = cloud(&scan, None, "mri_lps");
+        let e = op().run(i, &mut ctx).map(|_| ()).unwrap_err().to_string();
+        assert!(e.contains("no normals"), "{e}");
+        let mut i = inputs(6.0, 12);
+        i.landmarks_target = None;
+        let e = op().run(i, &mut ctx).map(|_| ()).unwrap_err().to_string();
+        assert!(e.contains("connect both"), "{e}");
     }
 }

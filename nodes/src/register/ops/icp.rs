@@ -6,8 +6,8 @@ use crate::calib::{
 use crate::cloud::Nearest;
 use crate::cloud::convert::{cloud_normals, cloud_points};
 use crate::register::convert::{
-    empty_pose_covariance, marker_points, pose_covariance_from_table, pose_covariance_table,
-    transform_isometry, transform_value,
+    self, MatchedLandmarks, empty_pose_covariance, pose_covariance_from_table,
+    pose_covariance_table, transform_isometry, transform_value,
 };
 use crate::register::figures::icp_figures;
 use crate::register::{
@@ -144,35 +144,15 @@ pub struct IcpInputs {
     pub source_covariance: Option<Arc<Table>>,
 }
 
-/// Landmarks in the source frame and their matches in the target frame.
-type LandmarkPairs = (Vec<Point3<f64>>, Vec<Point3<f64>>);
-
 /// The landmark pairs, checked: both sides or neither, in the clouds' frames,
 /// one to one.
-fn landmark_pairs(inputs: &IcpInputs) -> Result<Option<LandmarkPairs>, OpError> {
-    match (&inputs.landmarks_source, &inputs.landmarks_target) {
-        (None, None) => Ok(None),
-        (Some(a), Some(b)) => {
-            if a.frame != inputs.source.frame || b.frame != inputs.target.frame {
-                return Err(OpError::invalid(format!(
-                    "landmarks are in `{}` and `{}`, the clouds in `{}` and `{}`",
-                    a.frame, b.frame, inputs.source.frame, inputs.target.frame
-                )));
-            }
-            let (a, b) = (marker_points(a), marker_points(b));
-            if a.len() != b.len() {
-                return Err(OpError::invalid(format!(
-                    "{} source landmarks and {} target landmarks: they pair in order",
-                    a.len(),
-                    b.len()
-                )));
-            }
-            Ok(Some((a, b)))
-        }
-        _ => Err(OpError::invalid(
-            "connect both landmarks_source and landmarks_target, or neither",
-        )),
-    }
+fn landmark_pairs(inputs: &IcpInputs) -> Result<Option<MatchedLandmarks>, OpError> {
+    convert::landmark_pairs(
+        inputs.landmarks_source.as_deref(),
+        inputs.landmarks_target.as_deref(),
+        &inputs.source.frame,
+        &inputs.target.frame,
+    )
 }
 
 /// RMS distance of landmark pairs under `t`, mm.

@@ -14,7 +14,8 @@ use nalgebra::{Point3, Vector3};
 
 /// A smooth displacement field (nonrigid ICP on a lattice, bending-regularised) taking the scanned skin and markers onto those seen now, after the rigid registration; zero (the rigid result kept) where the data do not support one
 #[derive(Op)]
-#[op(name = "register.deformable", version = 1)]
+// 2: the skins thinned to a random subset, not every k-th point.
+#[op(name = "register.deformable", version = 2)]
 pub struct Deformable {
     /// deformable: fit the field; rigid: give a zero field (the rigid result), e.g. --set deform.mode=rigid
     #[param(default = DeformMode::Deformable)]
@@ -37,7 +38,7 @@ pub struct Deformable {
     /// A field that explains less than this of the skin's RMS residual after the rigid fit (sqrt(rigid^2 - after^2)) is not applied: no motion beyond what noise and a rigid fit leave
     #[param(default = 0.2, unit = "mm", min = 0.0)]
     pub min_explained_mm: f64,
-    /// Each skin is thinned to at most this many points (every k-th) for the fit
+    /// Each skin is thinned to at most this many points (a random subset, the same every run) for the fit
     #[param(default = 20000, min = 100)]
     pub max_points: usize,
     /// A field whose peak over the skin exceeds this is not trusted (the rigid result is kept)
@@ -89,15 +90,17 @@ impl RunOp for Deformable {
                 t.from, t.to, inputs.source.frame, inputs.target.frame
             )));
         }
-        let scan = thinned(cloud_points(&inputs.target), self.max_points);
         let normals = cloud_normals(&inputs.target).ok_or_else(|| {
             OpError::invalid(
                 "the target (scanned) cloud has no normals: the fit measures across them",
             )
         })?;
-        let normals = thinned(normals, self.max_points);
+        let scan_points = cloud_points(&inputs.target);
+        let kept = subset(scan_points.len(), self.max_points);
+        let (scan, normals) = (pick(&scan_points, &kept), pick(&normals, &kept));
         let iso = transform_isometry(t);
-        let now: Vec<Point3<f64>> = thinned(cloud_points(&inputs.source), self.max_points)
+        let now_points = cloud_points(&inputs.source);
+        let now: Vec<Point3<f64>> = pick(&now_points, &subset(now_points.len(), self.max_points))
             .iter()
             .map(|p| iso * p)
             .collect();
@@ -188,14 +191,24 @@ impl RunOp for Deformable {
     }
 }
 
-/// Every k-th of `items`, k the smallest that leaves at most `max`.
-fn thinned<T: Copy>(items: Vec<T>, max: usize) -> Vec<T> {
-    let every = items.len().div_ceil(max.max(1)).max(1);
-    if every == 1 {
-        items
-    } else {
-        items.into_iter().step_by(every).collect()
+/// The indices of at most `max` of `count` items, a uniform random subset
+/// (fixed seed, so the same every run) in their order. A stride (every
+/// k-th) aliases with the order a cloud was written in.
+fn subset(count: usize, max: usize) -> Vec<usize> {
+    use rand::SeedableRng;
+    use rand::seq::index::sample;
+    if count <= max {
+        return (0..count).collect();
     }
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x5EED);
+    let mut chosen = sample(&mut rng, count, max).into_vec();
+    chosen.sort_unstable();
+    chosen
+}
+
+/// The items at `indices`.
+fn pick<T: Copy>(items: &[T], indices: &[usize]) -> Vec<T> {
+    indices.iter().map(|&i| items[i]).collect()
 }
 
 /// The landmark pairs (seen now, moved by the rigid transform into the

@@ -201,34 +201,6 @@ pub(crate) fn error_ellipses_svg(
     svg
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn each_target_gets_an_ellipse_in_three_planes_sized_by_its_covariance() {
-        // Two targets, one spread 4 times wider along x: three ellipses
-        // each, and in the x-y panel the wide one's x semi-axis is the
-        // panel's 0.45 (scaled to its own largest axis), its y one a quarter.
-        let covariances = [
-            nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(0.16, 0.01, 0.01)),
-            nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(0.01, 0.01, 0.01)),
-        ];
-        let points = [Point3::new(1.0, 2.0, 500.0), Point3::new(-3.0, 0.0, 510.0)];
-        let svg = error_ellipses_svg(&[4, 9], &points, &covariances, "camera_left");
-        assert!(svg.starts_with("<svg") && svg.ends_with("</svg>"));
-        assert_eq!(svg.matches("<ellipse").count(), 6);
-        assert!(svg.contains("target 4 (1.0, 2.0, 500.0)") && svg.contains("target 9"));
-        let first = &svg[svg.find("<ellipse").unwrap()..];
-        let attribute = |name: &str| -> f64 {
-            let start = first.find(&format!("{name}=\"")).unwrap() + name.len() + 2;
-            first[start..].split('"').next().unwrap().parse().unwrap()
-        };
-        assert!((attribute("rx") - 99.0).abs() < 0.1, "{}", attribute("rx"));
-        assert!((attribute("ry") - 24.75).abs() < 0.1, "{}", attribute("ry"));
-    }
-}
-
 /// The skin's samples seen along each axis of their frame, each coloured by
 /// how far a deformation moved it (white none, dark red the peak), with a
 /// tick every `step` of the colour scale.
@@ -290,4 +262,32 @@ pub(crate) fn field_on_skin_svg(
     }
     svg.push_str("</svg>");
     svg
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_target_gets_an_ellipse_in_three_planes_sized_by_its_covariance() {
+        // Two targets, one spread 4 times wider along x: three ellipses
+        // each, and in the x-y panel the wide one's x semi-axis is the
+        // panel's 0.45 (scaled to its own largest axis), its y one a quarter.
+        let covariances = [
+            nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(0.16, 0.01, 0.01)),
+            nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(0.01, 0.01, 0.01)),
+        ];
+        let points = [Point3::new(1.0, 2.0, 500.0), Point3::new(-3.0, 0.0, 510.0)];
+        let svg = error_ellipses_svg(&[4, 9], &points, &covariances, "camera_left");
+        assert!(svg.starts_with("<svg") && svg.ends_with("</svg>"));
+        assert_eq!(svg.matches("<ellipse").count(), 6);
+        assert!(svg.contains("target 4 (1.0, 2.0, 500.0)") && svg.contains("target 9"));
+        let first = &svg[svg.find("<ellipse").unwrap()..];
+        let attribute = |name: &str| -> f64 {
+            let start = first.find(&format!("{name}=\"")).unwrap() + name.len() + 2;
+            first[start..].split('"').next().unwrap().parse().unwrap()
+        };
+        assert!((attribute("rx") - 99.0).abs() < 0.1, "{}", attribute("rx"));
+        assert!((attribute("ry") - 24.75).abs() < 0.1, "{}", attribute("ry"));
+    }
 }

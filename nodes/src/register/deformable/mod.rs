@@ -40,6 +40,12 @@
 //! touches 8 nodes). Written here: no Rust crate registers surfaces
 //! nonrigidly.
 
+mod lattice;
+mod solver;
+
+pub use lattice::{FIELD_COLUMNS, Lattice};
+use solver::{LandmarkRow, SurfaceRow, System};
+
 use crate::cloud::Nearest;
 use nalgebra::{Matrix3, Point3, Vector3};
 use rayon::prelude::*;
@@ -49,10 +55,6 @@ use rayon::prelude::*;
 /// reach, from drifting along the bending's free (linear) fields, and too
 /// little to pull the inside towards the surfaces' mean.
 const MEMBRANE_SHARE: f64 = 0.0001;
-
-/// The columns of a field as a table: each node's position and its
-/// displacement, mm.
-pub const FIELD_COLUMNS: [&str; 6] = ["x_mm", "y_mm", "z_mm", "u_x_mm", "u_y_mm", "u_z_mm"];
 
 /// How [`fit_deformation`] fits.
 #[derive(Debug, Clone, PartialEq)]
@@ -85,188 +87,6 @@ impl Default for DeformParams {
     }
 }
 
-/// A displacement field on a lattice (one frame, mm): trilinear between
-/// nodes, the nearest border cell's value beyond the lattice.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Lattice {
-    /// The first node, mm.
-    pub origin: Point3<f64>,
-    /// Node spacing, mm.
-    pub spacing_mm: f64,
-    /// Nodes along x, y, z.
-    pub dims: [usize; 3],
-    /// Each node's displacement, mm (x fastest, then y, then z).
-    pub displacements: Vec<Vector3<f64>>,
-}
-
-impl Lattice {
-    /// A zero field over the box around `points` grown by `margin_mm`.
-    pub fn covering(points: &[Point3<f64>], spacing_mm: f64, margin_mm: f64) -> Lattice {
-        let mut lo = Point3::from([f64::INFINITY; 3]);
-        let mut hi = Point3::from([f64::NEG_INFINITY; 3]);
-        for p in points {
-            lo = lo.inf(p);
-            hi = hi.sup(p);
-        }
-        let origin = lo - Vector3::repeat(margin_mm);
-        let dims: [usize; 3] = std::array::from_fn(|a| {
-            ((hi[a] - lo[a] + 2.0 * margin_mm) / spacing_mm).ceil() as usize + 1
-        });
-        Lattice {
-            origin,
-            spacing_mm,
-            dims,
-            displacements: vec![Vector3::zeros(); dims[0] * dims[1] * dims[2]],
-        }
-    }
-
-    fn node(&self, i: usize, j: usize, k: usize) -> usize {
-        i + self.dims[0] * (j + self.dims[1] * k)
-    }
-
-    /// The 8 nodes around `p` and their trilinear weights (clamped to the
-    /// lattice).
-    pub fn stencil(&self, p: &Point3<f64>) -> [(usize, f64); 8] {
-        let cell: [(usize, f64); 3] = std::array::from_fn(|a| {
-            let f =
-                ((p[a] - self.origin[a]) / self.spacing_mm).clamp(0.0, (self.dims[a] - 1) as f64);
-            let i = (f.floor() as usize).min(self.dims[a] - 2);
-            (i, f - i as f64)
-        });
-        std::array::from_fn(|c| {
-            let (dx, dy, dz) = (c & 1, (c >> 1) & 1, (c >> 2) & 1);
-            let w = |(_, t): (usize, f64), d: usize| if d == 1 { t } else { 1.0 - t };
-            (
-                self.node(cell[0].0 + dx, cell[1].0 + dy, cell[2].0 + dz),
-                w(cell[0], dx) * w(cell[1], dy) * w(cell[2], dz),
-            )
-        })
-    }
-
-    /// The displacement at `p`, mm.
-    pub fn displacement(&self, p: &Point3<f64>) -> Vector3<f64> {
-        self.stencil(p)
-            .iter()
-            .map(|&(n, w)| self.displacements[n] * w)
-            .sum()
-    }
-
-    /// Every node's position and displacement, one row each in the order
-    /// of [`Lattice::displacements`] (columns [`FIELD_COLUMNS`]).
-    pub fn to_rows(&self) -> Vec<[f64; 6]> {
-        let mut rows = Vec::with_capacity(self.displacements.len());
-        for k in 0..self.dims[2] {
-            for j in 0..self.dims[1] {
-                for i in 0..self.dims[0] {
-                    let p =
-                        self.origin + Vector3::new(i as f64, j as f64, k as f64) * self.spacing_mm;
-                    let u = self.displacements[self.node(i, j, k)];
-                    rows.push([p.x, p.y, p.z, u.x, u.y, u.z]);
-                }
-            }
-        }
-        rows
-    }
-
-    /// The lattice whose rows [`Lattice::to_rows`] gave; an error naming the
-    /// first row off a regular lattice.
-    pub fn from_rows(rows: &[[f64; 6]]) -> Result<Lattice, String> {
-        let at = |r: &[f64; 6]| Point3::new(r[0], r[1], r[2]);
-        if rows.len() < 8 {
-            return Err(format!("{} nodes: a lattice has at least 8", rows.len()));
-        }
-        let origin = at(&rows[0]);
-        let spacing_mm = rows[1][0] - rows[0][0];
-        if !(spacing_mm.is_finite() && spacing_mm > 0.0) {
-            return Err(format!(
-                "the first two nodes are {spacing_mm} mm apart along x"
-            ));
-        }
-        let run = |axis: usize, stride: usize| {
-            (1..)
-                .take_while(|&n| {
-                    n * stride < rows.len() && rows[n * stride][axis] > rows[(n - 1) * stride][axis]
-                })
-                .count()
-                + 1
-        };
-        let nx = run(0, 1);
-        let ny = run(1, nx);
-        let nz = rows.len() / (nx * ny);
-        if nx < 2 || ny < 2 || nz < 2 || nx * ny * nz != rows.len() {
-            return Err(format!(
-                "{} nodes do not make a lattice ({nx} x {ny} along x and y)",
-                rows.len()
-            ));
-        }
-        let mut lattice = Lattice {
-            origin,
-            spacing_mm,
-            dims: [nx, ny, nz],
-            displacements: Vec::with_capacity(rows.len()),
-        };
-        for (n, r) in rows.iter().enumerate() {
-            let (i, j, k) = (n % nx, (n / nx) % ny, n / (nx * ny));
-            let expected = origin + Vector3::new(i as f64, j as f64, k as f64) * spacing_mm;
-            if (at(r) - expected).norm() > 1e-6 * spacing_mm.max(1.0) {
-                return Err(format!(
-                    "node {n} is at ({:.3}, {:.3}, {:.3}) mm, off the lattice's ({:.3}, {:.3}, {:.3})",
-                    r[0], r[1], r[2], expected.x, expected.y, expected.z
-                ));
-            }
-            lattice.displacements.push(Vector3::new(r[3], r[4], r[5]));
-        }
-        Ok(lattice)
-    }
-
-    /// The lattice's node triples in a line (one spacing apart along an
-    /// axis), middle node second.
-    fn triples(&self) -> Vec<[usize; 3]> {
-        let [nx, ny, nz] = self.dims;
-        let mut triples = Vec::with_capacity(3 * nx * ny * nz);
-        for k in 0..nz {
-            for j in 0..ny {
-                for i in 0..nx {
-                    let b = self.node(i, j, k);
-                    if i > 0 && i + 1 < nx {
-                        triples.push([self.node(i - 1, j, k), b, self.node(i + 1, j, k)]);
-                    }
-                    if j > 0 && j + 1 < ny {
-                        triples.push([self.node(i, j - 1, k), b, self.node(i, j + 1, k)]);
-                    }
-                    if k > 0 && k + 1 < nz {
-                        triples.push([self.node(i, j, k - 1), b, self.node(i, j, k + 1)]);
-                    }
-                }
-            }
-        }
-        triples
-    }
-
-    /// The lattice's edges (node pairs one spacing apart).
-    fn edges(&self) -> Vec<(usize, usize)> {
-        let [nx, ny, nz] = self.dims;
-        let mut edges = Vec::with_capacity(3 * nx * ny * nz);
-        for k in 0..nz {
-            for j in 0..ny {
-                for i in 0..nx {
-                    let a = self.node(i, j, k);
-                    if i + 1 < nx {
-                        edges.push((a, self.node(i + 1, j, k)));
-                    }
-                    if j + 1 < ny {
-                        edges.push((a, self.node(i, j + 1, k)));
-                    }
-                    if k + 1 < nz {
-                        edges.push((a, self.node(i, j, k + 1)));
-                    }
-                }
-            }
-        }
-        edges
-    }
-}
-
 /// What [`fit_deformation`] found.
 #[derive(Debug, Clone)]
 pub struct Deformation {
@@ -293,23 +113,6 @@ pub struct LandmarkPairs<'a> {
     pub scan: &'a [Point3<f64>],
     /// Now.
     pub now: &'a [Point3<f64>],
-}
-
-/// One data row: a scan point's stencil, the direction(s) it is measured
-/// along, and its target.
-struct SurfaceRow {
-    stencil: [(usize, f64); 8],
-    normal: Vector3<f64>,
-    /// n . (c - s), mm.
-    target: f64,
-}
-
-struct LandmarkRow {
-    stencil: [(usize, f64); 8],
-    /// I - n n^T.
-    across: Matrix3<f64>,
-    /// P (k - m), mm.
-    target: Vector3<f64>,
 }
 
 /// The field taking `scan` (skin points with unit `normals`, one frame, mm,
@@ -519,156 +322,6 @@ fn surface_rows(
     Ok((rows, paired, rms))
 }
 
-/// One step's least-squares system over the nodes' displacements.
-struct System<'a> {
-    surface: &'a [SurfaceRow],
-    landmarks: &'a [LandmarkRow],
-    edges: &'a [(usize, usize)],
-    triples: &'a [[usize; 3]],
-    nodes: usize,
-    surface_weight: f64,
-    landmark_weight: f64,
-    edge_weight: f64,
-    bend_weight: f64,
-}
-
-impl System<'_> {
-    /// (A^T W A) u. The data rows in parallel chunks, each into a buffer
-    /// of its own (a row touches 8 nodes anywhere), summed in chunk order
-    /// (the same sums on any number of threads).
-    fn apply(&self, u: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
-        const CHUNK: usize = 4096;
-        let mut out = self
-            .surface
-            .par_chunks(CHUNK)
-            .map(|rows| {
-                let mut part = vec![Vector3::zeros(); self.nodes];
-                for r in rows {
-                    let v: f64 = r
-                        .stencil
-                        .iter()
-                        .map(|&(n, w)| w * r.normal.dot(&u[n]))
-                        .sum();
-                    let g = r.normal * (self.surface_weight * v);
-                    for &(n, w) in &r.stencil {
-                        part[n] += g * w;
-                    }
-                }
-                part
-            })
-            .collect::<Vec<_>>()
-            .into_iter()
-            .reduce(|mut a, b| {
-                a.iter_mut().zip(&b).for_each(|(a, b)| *a += b);
-                a
-            })
-            .unwrap_or_else(|| vec![Vector3::zeros(); self.nodes]);
-        for r in self.landmarks {
-            let v: Vector3<f64> = r.stencil.iter().map(|&(n, w)| u[n] * w).sum();
-            let g = r.across * (r.across * v) * self.landmark_weight;
-            for &(n, w) in &r.stencil {
-                out[n] += g * w;
-            }
-        }
-        for &(a, b) in self.edges {
-            let d = (u[a] - u[b]) * self.edge_weight;
-            out[a] += d;
-            out[b] -= d;
-        }
-        for &[a, b, c] in self.triples {
-            let d = (u[a] - u[b] * 2.0 + u[c]) * self.bend_weight;
-            out[a] += d;
-            out[b] -= d * 2.0;
-            out[c] += d;
-        }
-        out
-    }
-
-    /// A^T W b.
-    fn rhs(&self) -> Vec<Vector3<f64>> {
-        let mut out = vec![Vector3::zeros(); self.nodes];
-        for r in self.surface {
-            let g = r.normal * (self.surface_weight * r.target);
-            for &(n, w) in &r.stencil {
-                out[n] += g * w;
-            }
-        }
-        for r in self.landmarks {
-            let g = r.across * r.target * self.landmark_weight;
-            for &(n, w) in &r.stencil {
-                out[n] += g * w;
-            }
-        }
-        out
-    }
-
-    /// The inverse of each node's 3 x 3 diagonal block.
-    fn preconditioner(&self) -> Vec<Matrix3<f64>> {
-        let mut blocks = vec![Matrix3::zeros(); self.nodes];
-        for r in self.surface {
-            let nn = r.normal * r.normal.transpose() * self.surface_weight;
-            for &(n, w) in &r.stencil {
-                blocks[n] += nn * (w * w);
-            }
-        }
-        for r in self.landmarks {
-            for &(n, w) in &r.stencil {
-                blocks[n] += r.across * (self.landmark_weight * w * w);
-            }
-        }
-        for &(a, b) in self.edges {
-            blocks[a] += Matrix3::identity() * self.edge_weight;
-            blocks[b] += Matrix3::identity() * self.edge_weight;
-        }
-        for &[a, b, c] in self.triples {
-            blocks[a] += Matrix3::identity() * self.bend_weight;
-            blocks[b] += Matrix3::identity() * (4.0 * self.bend_weight);
-            blocks[c] += Matrix3::identity() * self.bend_weight;
-        }
-        blocks
-            .into_iter()
-            .map(|b| b.try_inverse().unwrap_or_else(Matrix3::identity))
-            .collect()
-    }
-
-    /// Preconditioned conjugate gradients from `start`, until the residual
-    /// is `tolerance` of the right-hand side's norm.
-    fn solve(&self, start: &[Vector3<f64>], tolerance: f64) -> Vec<Vector3<f64>> {
-        const MAX_ITERATIONS: usize = 300;
-        let dot = |a: &[Vector3<f64>], b: &[Vector3<f64>]| -> f64 {
-            a.iter().zip(b).map(|(x, y)| x.dot(y)).sum()
-        };
-        let m = self.preconditioner();
-        let b = self.rhs();
-        let mut x = start.to_vec();
-        let ax = self.apply(&x);
-        let mut r: Vec<Vector3<f64>> = b.iter().zip(&ax).map(|(b, a)| b - a).collect();
-        let norm_b = dot(&b, &b).sqrt().max(f64::MIN_POSITIVE);
-        let mut z: Vec<Vector3<f64>> = m.iter().zip(&r).map(|(m, r)| m * r).collect();
-        let mut d = z.clone();
-        let mut rz = dot(&r, &z);
-        for _ in 0..MAX_ITERATIONS {
-            if dot(&r, &r).sqrt() <= tolerance * norm_b {
-                break;
-            }
-            let ad = self.apply(&d);
-            let alpha = rz / dot(&d, &ad).max(f64::MIN_POSITIVE);
-            for i in 0..x.len() {
-                x[i] += d[i] * alpha;
-                r[i] -= ad[i] * alpha;
-            }
-            z = m.iter().zip(&r).map(|(m, r)| m * r).collect();
-            let rz_next = dot(&r, &z);
-            let beta = rz_next / rz.max(f64::MIN_POSITIVE);
-            rz = rz_next;
-            for i in 0..d.len() {
-                d[i] = z[i] + d[i] * beta;
-            }
-        }
-        x
-    }
-}
-
 /// Peak and RMS of the field's displacement over `points`, mm.
 pub fn displacement_stats(field: &Lattice, points: &[Point3<f64>]) -> (f64, f64) {
     if points.is_empty() {
@@ -865,31 +518,5 @@ pub(crate) mod tests {
             .collect();
         let e = fit_deformation(&scan, &normals, &far, None, &DeformParams::default()).unwrap_err();
         assert!(e.contains("within"), "{e}");
-    }
-
-    #[test]
-    fn the_lattice_interpolates_a_linear_field_exactly() {
-        let pts = [Point3::new(0.0, 0.0, 0.0), Point3::new(40.0, 30.0, 20.0)];
-        let mut l = Lattice::covering(&pts, 10.0, 5.0);
-        let f = |p: &Point3<f64>| Vector3::new(0.1 * p.x, -0.05 * p.y + 1.0, 0.02 * p.z);
-        for k in 0..l.dims[2] {
-            for j in 0..l.dims[1] {
-                for i in 0..l.dims[0] {
-                    let p = l.origin + Vector3::new(i as f64, j as f64, k as f64) * 10.0;
-                    let n = l.node(i, j, k);
-                    l.displacements[n] = f(&p);
-                }
-            }
-        }
-        let p = Point3::new(13.3, 7.9, 18.2);
-        assert!((l.displacement(&p) - f(&p)).norm() < 1e-9);
-        // Through its table and back.
-        let mut rows = l.to_rows();
-        assert_eq!(Lattice::from_rows(&rows).unwrap(), l);
-        rows[7][1] += 0.5;
-        let e = Lattice::from_rows(&rows).unwrap_err();
-        assert!(e.contains("node 7"), "{e}");
-        let e = Lattice::from_rows(&rows[..5]).unwrap_err();
-        assert!(e.contains("5 nodes"), "{e}");
     }
 }

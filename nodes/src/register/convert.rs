@@ -1,7 +1,7 @@
 //! Conversions between the engine's marker and transform values and the
 //! registration algorithms' points and isometries.
 
-use super::Similarity;
+use super::{FIELD_COLUMNS, Lattice, Similarity};
 use crate::calib::ParameterCovariance;
 use crate::camera::{isometry_from_matrix, isometry_to_matrix};
 use fusegraph_engine::OpError;
@@ -45,6 +45,36 @@ pub(crate) fn landmark_pairs(
             "connect both landmarks_source and landmarks_target, or neither",
         )),
     }
+}
+
+/// A displacement field as a table: one row per lattice node, the columns
+/// [`FIELD_COLUMNS`] (register.deformable's `field`).
+pub(crate) fn field_table(field: &Lattice) -> Table {
+    Table::new(
+        FIELD_COLUMNS.iter().map(|c| c.to_string()).collect(),
+        field.to_rows().concat(),
+    )
+    .expect("six values per row")
+}
+
+/// The field a [`field_table`] holds, its columns found by name; an error
+/// naming a missing column or the first node off a regular lattice.
+pub(crate) fn field_from_table(table: &Table) -> Result<Lattice, String> {
+    let columns: Vec<Vec<f64>> = FIELD_COLUMNS
+        .iter()
+        .map(|c| {
+            table.column(c).ok_or_else(|| {
+                format!(
+                    "no column `{c}` (give register.deformable's field: {})",
+                    FIELD_COLUMNS.join(", ")
+                )
+            })
+        })
+        .collect::<Result<_, _>>()?;
+    let rows: Vec<[f64; 6]> = (0..table.row_count())
+        .map(|r| std::array::from_fn(|c| columns[c][r]))
+        .collect();
+    Lattice::from_rows(&rows)
 }
 
 /// A Transform value's rigid part (its `from` frame -> its `to` frame).

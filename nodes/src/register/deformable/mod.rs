@@ -322,15 +322,13 @@ fn surface_rows(
     Ok((rows, paired, rms))
 }
 
-/// Peak and RMS of the field's displacement over `points`, mm.
-pub fn displacement_stats(field: &Lattice, points: &[Point3<f64>]) -> (f64, f64) {
-    if points.is_empty() {
+/// Peak and RMS length of `displacements` (e.g. a field's over the skin),
+/// mm.
+pub fn displacement_stats(displacements: &[Vector3<f64>]) -> (f64, f64) {
+    if displacements.is_empty() {
         return (0.0, 0.0);
     }
-    let norms: Vec<f64> = points
-        .iter()
-        .map(|p| field.displacement(p).norm())
-        .collect();
+    let norms: Vec<f64> = displacements.iter().map(|u| u.norm()).collect();
     let peak = norms.iter().copied().fold(0.0, f64::max);
     let rms = (norms.iter().map(|v| v * v).sum::<f64>() / norms.len() as f64).sqrt();
     (peak, rms)
@@ -404,6 +402,19 @@ pub(crate) mod tests {
             .collect()
     }
 
+    /// The field from `scan` (with `normals`) onto `now`, the scan's markers
+    /// `m` matched to `k`, with the default parameters.
+    fn fit(
+        scan: &[Point3<f64>],
+        normals: &[Vector3<f64>],
+        now: &[Point3<f64>],
+        m: &[Point3<f64>],
+        k: &[Point3<f64>],
+    ) -> Deformation {
+        let landmarks = Some(LandmarkPairs { scan: m, now: k });
+        fit_deformation(scan, normals, now, landmarks, &DeformParams::default()).unwrap()
+    }
+
     #[test]
     fn a_sagged_dome_seen_from_above_is_followed_inside_too() {
         // The camera sees the skin above 30 mm, moved by 8 mm of sag at the
@@ -420,14 +431,7 @@ pub(crate) mod tests {
             .collect();
         let m = markers(&scan);
         let k: Vec<Point3<f64>> = m.iter().map(|p| p + sag(p, 8.0)).collect();
-        let d = fit_deformation(
-            &scan,
-            &normals,
-            &now,
-            Some(LandmarkPairs { scan: &m, now: &k }),
-            &DeformParams::default(),
-        )
-        .unwrap();
+        let d = fit(&scan, &normals, &now, &m, &k);
         assert!(d.rigid_residual_mm > 2.0, "{}", d.rigid_residual_mm);
         assert!(d.residual_mm < 0.3, "{}", d.residual_mm);
         let mut sum = 0.0;
@@ -450,15 +454,9 @@ pub(crate) mod tests {
         let (scan, normals) = dome(2.5);
         let now: Vec<Point3<f64>> = dome(2.0).0.into_iter().filter(|p| p.z > 30.0).collect();
         let m = markers(&scan);
-        let d = fit_deformation(
-            &scan,
-            &normals,
-            &now,
-            Some(LandmarkPairs { scan: &m, now: &m }),
-            &DeformParams::default(),
-        )
-        .unwrap();
-        let (peak, _) = displacement_stats(&d.field, &scan);
+        let d = fit(&scan, &normals, &now, &m, &m);
+        let shifts: Vec<Vector3<f64>> = scan.iter().map(|p| d.field.displacement(p)).collect();
+        let (peak, _) = displacement_stats(&shifts);
         assert!(peak < 0.3, "{peak}");
     }
 
@@ -476,14 +474,7 @@ pub(crate) mod tests {
             .collect();
         let m = markers(&scan);
         let k: Vec<Point3<f64>> = m.iter().map(|p| turn * p).collect();
-        let with = fit_deformation(
-            &scan,
-            &normals,
-            &now,
-            Some(LandmarkPairs { scan: &m, now: &k }),
-            &DeformParams::default(),
-        )
-        .unwrap();
+        let with = fit(&scan, &normals, &now, &m, &k);
         let p = Point3::new(50.0, 0.0, 60.0);
         let truth = turn * p - p;
         let err = (with.field.displacement(&p) - truth).norm();

@@ -2,11 +2,9 @@
 //! takes the scanned skin and markers onto those seen now.
 
 use crate::cloud::convert::{cloud_normals, cloud_points};
-use crate::register::convert::{MatchedLandmarks, landmark_pairs, transform_isometry};
+use crate::register::convert::{MatchedLandmarks, field_table, landmark_pairs, transform_isometry};
 use crate::register::figures::field_on_skin_svg;
-use crate::register::{
-    DeformParams, FIELD_COLUMNS, LandmarkPairs, Lattice, displacement_stats, fit_deformation,
-};
+use crate::register::{DeformParams, LandmarkPairs, Lattice, displacement_stats, fit_deformation};
 use fusegraph_engine::figure::FigureData;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Markers, PointCloud, Table, Transform};
@@ -137,14 +135,14 @@ impl RunOp for Deformable {
             )
             .map_err(OpError::invalid)?;
             let seen: Vec<Point3<f64>> = d.seen.iter().map(|&j| scan[j]).collect();
-            let (peak, rms) = displacement_stats(&d.field, &seen);
+            let shifts: Vec<Vector3<f64>> = seen.iter().map(|p| d.field.displacement(p)).collect();
+            let (peak, rms) = displacement_stats(&shifts);
             ctx.metric("peak_displacement_mm", peak);
             ctx.metric("rms_displacement_mm", rms);
             ctx.metric("rigid_residual_mm", d.rigid_residual_mm);
             ctx.metric("residual_mm", d.residual_mm);
             ctx.metric("rigid_landmark_residual_mm", d.rigid_landmark_residual_mm);
             ctx.metric("landmark_residual_mm", d.landmark_residual_mm);
-            let shifts: Vec<Vector3<f64>> = seen.iter().map(|p| d.field.displacement(p)).collect();
             ctx.figure(
                 "field",
                 "How far the deformation moved each point of the skin both see (scan frame), seen along each axis",
@@ -184,10 +182,9 @@ impl RunOp for Deformable {
             "applied",
             field.displacements.iter().any(|u| u.norm() > 0.0) as u8 as f64,
         );
-        let rows: Vec<f64> = field.to_rows().concat();
-        let field = Table::new(FIELD_COLUMNS.iter().map(|c| c.to_string()).collect(), rows)
-            .map_err(|e| OpError::invalid(e.0))?;
-        Ok(DeformableOutputs { field })
+        Ok(DeformableOutputs {
+            field: field_table(&field),
+        })
     }
 }
 
@@ -229,6 +226,7 @@ fn landmark_points(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::register::convert::field_from_table;
     use crate::register::deformable::tests::dome;
 
     fn cloud(
@@ -285,10 +283,7 @@ mod tests {
     }
 
     fn largest(field: &Table) -> f64 {
-        let rows: Vec<[f64; 6]> = (0..field.row_count())
-            .map(|r| std::array::from_fn(|c| field.row(r)[c]))
-            .collect();
-        Lattice::from_rows(&rows)
+        field_from_table(field)
             .unwrap()
             .displacements
             .iter()

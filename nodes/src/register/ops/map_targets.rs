@@ -3,12 +3,11 @@
 use crate::calib::{columns_with_covariance, covariance_entries};
 use crate::eval::convert::load_truth;
 use crate::eval::{target_errors, true_mri_to_camera};
-use crate::register::convert::{marker_points, markers_value, pose_covariance_from_table};
-use crate::register::figures::error_ellipses_svg;
-use crate::register::{
-    FIELD_COLUMNS, Lattice, error_bound_mm, map_targets, mapped_target_covariances,
-    predict_marker_tre,
+use crate::register::convert::{
+    field_from_table, marker_points, markers_value, pose_covariance_from_table,
 };
+use crate::register::figures::error_ellipses_svg;
+use crate::register::{error_bound_mm, map_targets, mapped_target_covariances, predict_marker_tre};
 use fusegraph_engine::figure::FigureData;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Markers, PathValue, Table, Transform};
@@ -201,22 +200,8 @@ fn deformed(
     points: &[Point3<f64>],
     table: &Table,
 ) -> Result<Vec<Point3<f64>>, OpError> {
-    let columns: Vec<Vec<f64>> = FIELD_COLUMNS
-        .iter()
-        .map(|c| {
-            table.column(c).ok_or_else(|| {
-                OpError::invalid(format!(
-                    "deformation: no column `{c}` (give register.deformable's field: {})",
-                    FIELD_COLUMNS.join(", ")
-                ))
-            })
-        })
-        .collect::<Result<_, _>>()?;
-    let rows: Vec<[f64; 6]> = (0..table.row_count())
-        .map(|r| std::array::from_fn(|c| columns[c][r]))
-        .collect();
     let field =
-        Lattice::from_rows(&rows).map_err(|e| OpError::invalid(format!("deformation: {e}")))?;
+        field_from_table(table).map_err(|e| OpError::invalid(format!("deformation: {e}")))?;
     let moved: Vec<Point3<f64>> = points.iter().map(|p| p + field.displacement(p)).collect();
     for ((id, p), m) in ids.iter().zip(points).zip(&moved) {
         ctx.metric(&format!("target_{id}_deformation_mm"), (m - p).norm());
@@ -299,6 +284,8 @@ fn report_marker_prediction(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::register::Lattice;
+    use crate::register::convert::field_table;
 
     fn markers(positions: &[[f64; 3]], frame: &str) -> Arc<Markers> {
         let ids: Vec<u32> = (0..positions.len() as u32).collect();
@@ -417,11 +404,7 @@ mod tests {
         for u in &mut field.displacements {
             *u = nalgebra::Vector3::new(2.0, 0.0, 0.0);
         }
-        let table = Table::new(
-            FIELD_COLUMNS.iter().map(|c| c.to_string()).collect(),
-            field.to_rows().concat(),
-        )
-        .unwrap();
+        let table = field_table(&field);
         let mut i = inputs("camera_left");
         i.deformation = Some(Arc::new(table));
         let mut ctx = RunCtx::new("targets", &std::env::temp_dir());

@@ -71,9 +71,12 @@ pub struct GraphDoc {
     /// `[graph] plugins`: plugin libraries the graph needs, resolved against
     /// the graph file's folder.
     pub plugins: Vec<PathBuf>,
+    /// `[graph] python`: Python files declaring ops the graph needs,
+    /// resolved against the graph file's folder (see [`crate::script`]).
+    pub python: Vec<PathBuf>,
 }
 
-const GRAPH_KEYS: &[&str] = &["name", "description", "references", "plugins"];
+const GRAPH_KEYS: &[&str] = &["name", "description", "references", "plugins", "python"];
 
 /// The largest graph file read (64 MiB: about a million nodes).
 const MAX_GRAPH_BYTES: u64 = 64 << 20;
@@ -116,6 +119,7 @@ impl GraphDoc {
         let mut groups = Vec::new();
         let mut references = Vec::new();
         let mut plugins: Vec<PathBuf> = Vec::new();
+        let mut python: Vec<PathBuf> = Vec::new();
         for (key, value) in &table {
             match (key.as_str(), value) {
                 ("graph", toml::Value::Table(g)) => {
@@ -127,14 +131,16 @@ impl GraphDoc {
                             }
                             continue;
                         }
-                        if k == "plugins" {
+                        if k == "plugins" || k == "python" {
+                            let what = if k == "plugins" { "library" } else { "Python file" };
                             match v.as_array().map(|a| a.iter().map(|p| p.as_str()).collect::<Option<Vec<_>>>()) {
                                 Some(Some(list)) => {
-                                    plugins = list.iter().map(PathBuf::from).collect()
+                                    let list = list.iter().map(PathBuf::from).collect();
+                                    if k == "plugins" { plugins = list } else { python = list }
                                 }
                                 _ => errors.push(
-                                    err("[graph] plugins must be a list of library paths (relative to the graph file)".into())
-                                        .at_key("plugins"),
+                                    err(format!("[graph] {k} must be a list of {what} paths (relative to the graph file)"))
+                                        .at_key(k),
                                 ),
                             }
                             continue;
@@ -222,6 +228,7 @@ impl GraphDoc {
             .to_path_buf();
         let base_dir = std::path::absolute(&base_dir).unwrap_or(base_dir);
         let plugins = plugins.iter().map(|p| base_dir.join(p)).collect();
+        let python = python.iter().map(|p| base_dir.join(p)).collect();
         Ok(GraphDoc {
             file: file.to_path_buf(),
             name,
@@ -230,6 +237,7 @@ impl GraphDoc {
             groups,
             references,
             plugins,
+            python,
         })
     }
 

@@ -25,6 +25,7 @@ pub mod registry;
 pub mod report;
 pub mod report_html;
 pub mod schedule;
+pub mod script;
 pub mod session;
 pub mod sweep;
 pub mod typed;

@@ -179,7 +179,7 @@ pub fn load_plugin(path: &Path, registry: &mut Registry) -> Result<Vec<String>, 
     let mut ops = Vec::new();
     for (index, decl) in declaration.op.iter().enumerate() {
         let spec = decl
-            .to_spec(&origin)
+            .to_spec(&origin, abi_type)
             .map_err(|e| format!("plugin {shown}: op `{}`: {e}", decl.name))?;
         ops.push(PluginOp {
             spec,
@@ -291,14 +291,35 @@ fn abi_type(name: &str) -> Result<ValueType, String> {
         .ok_or_else(|| format!("value type `{name}` does not cross the plugin ABI (yet)"))
 }
 
+/// The spec of one op declared in JSON, in the form of a plugin's
+/// declaration (`name`, `version`, `doc`, `inputs`, `outputs`, `params`;
+/// see `fusegraph_plugin_api::declare`), by a script from `origin`: every
+/// value type is allowed, since a script's values do not cross the C ABI.
+pub fn script_op_spec(json: &str, origin: &Origin) -> Result<OpSpec, String> {
+    let decl: OpDecl =
+        serde_json::from_str(json).map_err(|e| format!("the op's declaration: {e}"))?;
+    let any_type = |name: &str| {
+        ValueType::from_name(name).ok_or_else(|| {
+            let all: Vec<&str> = ValueType::ALL.iter().map(|t| t.name()).collect();
+            format!("unknown value type `{name}` (one of {})", all.join(", "))
+        })
+    };
+    decl.to_spec(origin, any_type)
+        .map_err(|e| format!("op `{}`: {e}", decl.name))
+}
+
 impl OpDecl {
-    fn to_spec(&self, origin: &Origin) -> Result<OpSpec, String> {
+    fn to_spec(
+        &self,
+        origin: &Origin,
+        port_type: impl Fn(&str) -> Result<ValueType, String>,
+    ) -> Result<OpSpec, String> {
         let mut spec = OpSpec::new(&self.name, self.version, &self.doc);
         for p in &self.inputs {
             let types = p
                 .types
                 .iter()
-                .map(|t| abi_type(t))
+                .map(|t| port_type(t))
                 .collect::<Result<Vec<_>, _>>()?;
             spec.inputs.push(PortSpec {
                 name: p.name.clone(),
@@ -310,7 +331,7 @@ impl OpDecl {
         for p in &self.outputs {
             spec.outputs.push(PortSpec {
                 name: p.name.clone(),
-                types: vec![abi_type(&p.ty)?],
+                types: vec![port_type(&p.ty)?],
                 optional: false,
                 doc: p.doc.clone(),
             });
@@ -323,6 +344,7 @@ impl OpDecl {
                 "string" => ParamKind::String,
                 "int_list" => ParamKind::IntList,
                 "float_list" => ParamKind::FloatList,
+                "string_list" => ParamKind::StringList,
                 other => return Err(format!("parameter `{}`: unknown kind `{other}`", p.name)),
             };
             let mut param = ParamSpec {

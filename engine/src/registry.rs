@@ -2,6 +2,7 @@
 //! theirs after the built-in ones).
 
 use crate::op::{Op, OpSpec};
+use crate::script::ScriptHost;
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
@@ -23,6 +24,9 @@ pub struct Registry {
     /// Plugin libraries loaded into this registry (canonical paths), with
     /// the ops each declared.
     plugins: BTreeMap<std::path::PathBuf, Vec<String>>,
+    /// Runs the scripts (Python files) graphs name, where the program embeds
+    /// an interpreter.
+    script_host: Option<Arc<dyn ScriptHost>>,
 }
 
 impl Registry {
@@ -59,6 +63,22 @@ impl Registry {
     /// The ops of the plugin at `file` (canonical), if it is loaded.
     pub fn plugin_ops(&self, file: &std::path::Path) -> Option<&[String]> {
         self.plugins.get(file).map(Vec::as_slice)
+    }
+
+    /// Lets graphs name scripts, which `host` loads (see [`crate::script`]).
+    pub fn set_script_host(&mut self, host: Arc<dyn ScriptHost>) {
+        self.script_host = Some(host);
+    }
+
+    /// The host that loads scripts, if the program has one.
+    pub fn script_host(&self) -> Option<Arc<dyn ScriptHost>> {
+        self.script_host.clone()
+    }
+
+    /// Removes the node type called `name` (a script's op declared again
+    /// with other code replaces the old one); whether it was there.
+    pub fn unregister(&mut self, name: &str) -> bool {
+        self.ops.remove(name).is_some()
     }
 
     /// The node type called `name`.

@@ -33,11 +33,18 @@ pub fn load_graph(
     registry: &Registry,
 ) -> Result<ValidGraph, GraphErrors> {
     let mut doc = GraphDoc::load(file)?;
-    let registry = with_graph_plugins(&doc, registry)?;
-    let mut errors: Vec<_> = overrides
-        .iter()
-        .filter_map(|s| doc.apply_set(s).err())
-        .collect();
+    let mut errors = Vec::new();
+    // A script that cannot be loaded leaves its ops unknown: validation goes
+    // on, so the error names each node's op as well as the file.
+    let registry = match with_graph_plugins(&doc, registry) {
+        Ok(r) => r,
+        Err(GraphErrors(e)) if e.iter().all(|e| e.key.as_deref() == Some("python")) => {
+            errors.extend(e);
+            std::borrow::Cow::Borrowed(registry)
+        }
+        Err(e) => return Err(e),
+    };
+    errors.extend(overrides.iter().filter_map(|s| doc.apply_set(s).err()));
     // The graph with the overrides that did apply is still validated, so one
     // pass reports every problem, not the overrides' first.
     match validate(&doc, &registry) {
@@ -50,13 +57,19 @@ pub fn load_graph(
     }
 }
 
-/// `registry` with the plugins `doc`'s `[graph] plugins` names loaded (the
-/// same registry when it names none).
+/// `registry` with the plugins `doc`'s `[graph] plugins` names and the
+/// Python files its `[graph] python` names loaded (the same registry when it
+/// names none). A script's error is keyed `python`.
 pub fn with_graph_plugins<'a>(
     doc: &GraphDoc,
     registry: &'a Registry,
 ) -> Result<std::borrow::Cow<'a, Registry>, GraphErrors> {
-    with_plugins(&doc.plugins, &doc.file, registry)
+    let mut registry = with_plugins(&doc.plugins, &doc.file, registry)?;
+    if !doc.python.is_empty() {
+        crate::script::load_scripts(&doc.python, registry.to_mut())
+            .map_err(|why| GraphError::file(ErrorKind::Plugin, &doc.file, why).at_key("python"))?;
+    }
+    Ok(registry)
 }
 
 /// `registry` with the plugin libraries `files` loaded; errors name

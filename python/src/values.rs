@@ -21,7 +21,7 @@ use pyo3::types::{PyDict, PyList};
 use std::sync::Arc;
 
 /// Keeps an engine buffer alive while numpy views of it exist.
-#[pyclass(frozen)]
+#[pyclass(frozen, name = "BufferOwner", module = "fusegraph._native")]
 struct Keep(#[allow(dead_code)] Box<dyn std::any::Any + Send + Sync>);
 
 /// A read-only numpy view of `data` with `shape` (C order).
@@ -200,7 +200,13 @@ fn array<T: Element + Copy>(
         )
     })?;
     let shape = array.shape().to_vec();
-    let data = array.readonly().as_array().iter().copied().collect();
+    let view = array.readonly();
+    // One memcpy where numpy's layout is C order already (the package makes
+    // it so); element by element otherwise.
+    let data = match view.as_slice() {
+        Ok(slice) => slice.to_vec(),
+        Err(_) => view.as_array().iter().copied().collect(),
+    };
     Ok((shape, data))
 }
 

@@ -31,7 +31,13 @@ pub fn validate_variants(
     plan: &SweepPlan,
     registry: &Registry,
 ) -> Result<Vec<ValidGraph>, GraphErrors> {
-    let registry = with_plugins(&plan.plugins, &plan.file, registry)?;
+    let mut registry = with_plugins(&plan.plugins, &plan.file, registry)?;
+    if !plan.python.is_empty() {
+        crate::script::load_scripts(&plan.python, registry.to_mut()).map_err(|why| {
+            crate::error::GraphError::file(crate::error::ErrorKind::Plugin, &plan.file, why)
+                .at_key("python")
+        })?;
+    }
     let doc = GraphDoc::load(&plan.graph)?;
     let registry = with_graph_plugins(&doc, &registry)?;
     let mut graphs = Vec::new();

@@ -76,6 +76,9 @@ pub struct SweepPlan {
     pub variants: Vec<Variant>,
     /// Plugin libraries named by `[sweep] plugins`, resolved against the file.
     pub plugins: Vec<PathBuf>,
+    /// Python files declaring ops, named by `[sweep] python`, resolved
+    /// against the file (see [`crate::script`]).
+    pub python: Vec<PathBuf>,
 }
 
 const SWEEP_KEYS: &[&str] = &[
@@ -89,6 +92,7 @@ const SWEEP_KEYS: &[&str] = &[
     "set",
     "vary",
     "plugins",
+    "python",
 ];
 
 /// The longest a sweep may be.
@@ -208,6 +212,10 @@ pub fn load_sweep(file: &Path) -> Result<SweepPlan, GraphErrors> {
         errors.push(err(format!("metric {m:?}: metrics are named NODE.METRIC")).at_key("metrics"));
     }
     let plugins = strings("plugins", &mut errors)
+        .iter()
+        .map(|p| base.join(p))
+        .collect();
+    let python = strings("python", &mut errors)
         .iter()
         .map(|p| base.join(p))
         .collect();
@@ -400,6 +408,7 @@ pub fn load_sweep(file: &Path) -> Result<SweepPlan, GraphErrors> {
         common,
         variants,
         plugins,
+        python,
     })
 }
 

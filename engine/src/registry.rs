@@ -2,8 +2,8 @@
 //! theirs after the built-in ones).
 
 use crate::op::{Op, OpSpec};
-use crate::script::ScriptHost;
 use std::collections::BTreeMap;
+use std::path::Path;
 use std::sync::Arc;
 
 /// A node type that cannot be registered.
@@ -15,6 +15,16 @@ pub enum RegisterError {
     /// The declaration is inconsistent.
     #[error("op `{0}`: {1}")]
     InvalidSpec(String, String),
+}
+
+/// Runs script files (Python) and registers the ops they declare; the
+/// program that embeds an interpreter puts one in its registry (see
+/// [`crate::script`]).
+pub trait ScriptHost: Send + Sync {
+    /// Runs `file` (absolute) and adds the ops it declares to `registry`;
+    /// returns their names. Loading a file again whose ops are already in
+    /// `registry` unchanged is not an error.
+    fn load(&self, file: &Path, registry: &mut Registry) -> Result<Vec<String>, String>;
 }
 
 /// Node types by op name.

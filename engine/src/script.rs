@@ -7,20 +7,12 @@
 //! [`NO_SCRIPT_HOST`], and validation still names each op it cannot find.
 
 use crate::registry::Registry;
-use std::path::Path;
+pub use crate::registry::ScriptHost;
 
 /// Why a script cannot be loaded in a program without a host.
 pub const NO_SCRIPT_HOST: &str = "Python ops need the fusegraph Python package: \
 `pip install ./python` in the fusegraph checkout, then run the graph with \
 `python -m fusegraph run GRAPH.toml` (or `fusegraph.run(...)` from Python)";
-
-/// Runs script files and registers the ops they declare.
-pub trait ScriptHost: Send + Sync {
-    /// Runs `file` (absolute) and adds the ops it declares to `registry`;
-    /// returns their names. Loading a file again whose ops are already in
-    /// `registry` unchanged is not an error.
-    fn load(&self, file: &Path, registry: &mut Registry) -> Result<Vec<String>, String>;
-}
 
 /// `registry` with the scripts `files` loaded by its host; the error says
 /// which file failed and why, or that there is no host.
@@ -42,6 +34,8 @@ pub fn load_scripts(files: &[std::path::PathBuf], registry: &mut Registry) -> Re
 mod tests {
     use super::*;
     use std::sync::{Arc, Mutex};
+
+    use std::path::Path;
 
     struct Recorder(Mutex<Vec<String>>);
 

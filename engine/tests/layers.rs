@@ -16,7 +16,7 @@ const LAYERS: &[&[&str]] = &[
     // What an op is, and ops in the typed form.
     &["op", "typed"],
     // Where ops come from.
-    &["registry", "plugin"],
+    &["registry", "plugin", "script"],
     // Graph files, validation and keys.
     &["each", "graph", "validate", "key", "dot"],
     // Running: files, leases, the cache, the scheduler, reports.

@@ -32,7 +32,15 @@ pub fn load_graph(
     overrides: &[String],
     registry: &Registry,
 ) -> Result<ValidGraph, GraphErrors> {
-    let mut doc = GraphDoc::load(file)?;
+    validate_doc(GraphDoc::load(file)?, overrides, registry)
+}
+
+/// [`load_graph`] on a graph already read (and perhaps edited).
+pub fn validate_doc(
+    mut doc: GraphDoc,
+    overrides: &[String],
+    registry: &Registry,
+) -> Result<ValidGraph, GraphErrors> {
     let mut errors = Vec::new();
     // A script that cannot be loaded leaves its ops unknown: validation goes
     // on, so the error names each node's op as well as the file.

@@ -42,8 +42,8 @@ fn graph_error(py: Python<'_>, errors: &GraphErrors) -> PyErr {
     err
 }
 
-fn registry(py: Python<'_>) -> PyResult<Registry> {
-    let _ = py;
+/// The registry of a call: the built-in ops and every Python op declared.
+fn registry() -> PyResult<Registry> {
     host::registry().map_err(PyValueError::new_err)
 }
 
@@ -171,9 +171,6 @@ fn load(
     given: Vec<(String, String, Value)>,
     registry: &Registry,
 ) -> Result<fusegraph_engine::validate::ValidGraph, GraphErrors> {
-    if given.is_empty() {
-        return fusegraph_engine::session::load_graph(graph, sets, registry);
-    }
     let mut doc = GraphDoc::load(graph)?;
     let mut registry = registry.clone();
     let as_error = |why: String| {
@@ -184,13 +181,7 @@ fn load(
         )])
     };
     replace_outputs(&mut doc, given, &mut registry).map_err(as_error)?;
-    let registry = fusegraph_engine::session::with_graph_plugins(&doc, &registry)?;
-    let errors: Vec<_> = sets.iter().filter_map(|s| doc.apply_set(s).err()).collect();
-    match fusegraph_engine::validate::validate(&doc, &registry) {
-        Ok(g) if errors.is_empty() => Ok(g),
-        Ok(_) => Err(GraphErrors(errors)),
-        Err(GraphErrors(more)) => Err(GraphErrors(errors.into_iter().chain(more).collect())),
-    }
+    fusegraph_engine::session::validate_doc(doc, sets, &registry)
 }
 
 /// Runs a graph; see `fusegraph.run`.
@@ -207,7 +198,7 @@ fn run<'py>(
     jobs: usize,
     inputs: Option<Bound<'py, PyDict>>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let registry = registry(py)?;
+    let registry = registry()?;
     let given = given_values(inputs)?;
     let loaded = py.detach(|| load(&graph, &sets, given, &registry));
     let valid = loaded.map_err(|e| graph_error(py, &e))?;
@@ -256,7 +247,7 @@ fn validate<'py>(
     graph: PathBuf,
     sets: Vec<String>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let registry = registry(py)?;
+    let registry = registry()?;
     let valid = py
         .detach(|| fusegraph_engine::session::load_graph(&graph, &sets, &registry))
         .map_err(|e| graph_error(py, &e))?;
@@ -271,8 +262,8 @@ fn validate<'py>(
 
 /// Every op's declaration, as JSON (as `fusegraph nodes --json`).
 #[pyfunction]
-fn nodes(py: Python<'_>) -> PyResult<String> {
-    let registry = registry(py)?;
+fn nodes() -> PyResult<String> {
+    let registry = registry()?;
     let specs: Vec<_> = registry.specs().collect();
     Ok(serde_json::to_string(&specs).expect("plain data"))
 }
@@ -289,7 +280,7 @@ fn sweep<'py>(
     jobs: usize,
 ) -> PyResult<Bound<'py, PyDict>> {
     use fusegraph_engine::sweep as sw;
-    let registry = registry(py)?;
+    let registry = registry()?;
     let plan = sw::load_sweep(&sweep).map_err(|e| graph_error(py, &e))?;
     let graphs = py
         .detach(|| sw::validate_variants(&plan, &registry))

@@ -116,6 +116,10 @@ class Runs(unittest.TestCase):
         vol = ball_volume()
         r = fusegraph.run(graph, out=self.dir / "t1", no_cache=True, inputs={"src.volume": vol})
         self.assertTrue(r.ok, r.errors)
+        # The given volume back out of the engine: voxels and affine unchanged.
+        back = r["src.volume"]
+        np.testing.assert_array_equal(back.array, vol.array)
+        np.testing.assert_array_equal(back.affine, vol.affine)
         mask = r["mask.mask"]
         self.assertEqual(mask.array.dtype, np.uint8)
         np.testing.assert_array_equal(mask.array, (vol.array > 0.5).astype(np.uint8))

@@ -87,6 +87,12 @@ pub fn node_key(
         // A rebuilt plugin invalidates its own ops' results only.
         put_str(&mut h, &origin.content_hash);
     }
+    if let Some(code) = &spec.code {
+        // An edited op invalidates its own results (and, through the
+        // chained keys, what follows) only.
+        put_str(&mut h, "code");
+        put_str(&mut h, code);
+    }
     let mut problems = Vec::new();
     for (name, value) in &node.params.0 {
         // A parameter at its declared default is left out: an op that gains

@@ -62,6 +62,12 @@ pub struct OpSpec {
     /// content hash is part of the op's cache key.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub origin: Option<Origin>,
+    /// A fingerprint of the op's implementation (built-in ops: a hash of
+    /// the source files it runs, made by `fusegraph-nodes`' build script).
+    /// Part of the cache key, so editing an op re-runs its nodes; not part
+    /// of the declaration (`fusegraph nodes`).
+    #[serde(skip)]
+    pub code: Option<String>,
 }
 
 /// Where a plugin's op comes from.
@@ -85,6 +91,7 @@ impl OpSpec {
             params: Vec::new(),
             writes_output: false,
             origin: None,
+            code: None,
         }
     }
 

@@ -75,6 +75,19 @@ impl Registry {
         self.plugins.get(file).map(Vec::as_slice)
     }
 
+    /// Sets the fingerprint of op `name`'s implementation (see
+    /// [`OpSpec::code`]); whether the op is registered.
+    pub fn set_code(&mut self, name: &str, code: &str) -> bool {
+        let Some(op) = self.ops.get(name).cloned() else {
+            return false;
+        };
+        let mut spec = op.spec().clone();
+        spec.code = Some(code.to_string());
+        self.ops
+            .insert(name.to_string(), Arc::new(WithCode { spec, op }));
+        true
+    }
+
     /// Lets graphs name scripts, which `host` loads (see [`crate::script`]).
     pub fn set_script_host(&mut self, host: Arc<dyn ScriptHost>) {
         self.script_host = Some(host);
@@ -104,5 +117,34 @@ impl Registry {
     /// Every declaration, sorted by op name.
     pub fn specs(&self) -> impl Iterator<Item = &OpSpec> {
         self.ops.values().map(|op| op.spec())
+    }
+}
+
+/// An op with its code fingerprint set.
+struct WithCode {
+    spec: OpSpec,
+    op: Arc<dyn Op>,
+}
+
+impl Op for WithCode {
+    fn spec(&self) -> &OpSpec {
+        &self.spec
+    }
+
+    fn run(
+        &self,
+        inputs: &crate::op::Inputs,
+        params: &crate::param::Params,
+        ctx: &mut crate::op::RunCtx,
+    ) -> Result<crate::op::Outputs, crate::op::OpError> {
+        self.op.run(inputs, params, ctx)
+    }
+
+    fn check(
+        &self,
+        params: &crate::param::Params,
+        wired: crate::op::Wired,
+    ) -> Vec<crate::param::ParamError> {
+        self.op.check(params, wired)
     }
 }

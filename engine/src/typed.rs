@@ -175,6 +175,7 @@ pub fn spec_of<T: RunOp>() -> Result<OpSpec, String> {
         params: T::param_decls().into_iter().map(param_spec).collect(),
         writes_output: T::WRITES_OUTPUT,
         origin: None,
+        code: None,
     })
 }
 

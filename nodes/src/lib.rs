@@ -30,7 +30,8 @@ pub(crate) fn on_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) 
 use fusegraph_engine::Registry;
 use fusegraph_engine::registry::RegisterError;
 
-/// Registers every built-in node type.
+/// Registers every built-in node type, each with its code fingerprint (the
+/// build script's, see `build/fingerprint.rs`) for its cache keys.
 pub fn register_all(registry: &mut Registry) -> Result<(), RegisterError> {
     calib::register(registry)?;
     cloud::register(registry)?;
@@ -44,8 +45,17 @@ pub fn register_all(registry: &mut Registry) -> Result<(), RegisterError> {
     plot::register(registry)?;
     register::register(registry)?;
     stereo::register(registry)?;
+    for (op, code) in CODE_FINGERPRINTS {
+        registry.set_code(op, code);
+    }
     Ok(())
 }
+
+include!(concat!(env!("OUT_DIR"), "/code_fingerprints.rs"));
+
+#[cfg(test)]
+#[path = "../build/fingerprint.rs"]
+mod code_fingerprint;
 
 /// A registry holding every built-in node type.
 pub fn builtin_registry() -> Registry {

@@ -634,6 +634,7 @@ fn scheduler(nodes: usize, jobs: usize, repeat: usize, registry: &Registry) -> a
             cache,
             jobs,
             progress: false,
+            provenance: Default::default(),
         };
         let t = Instant::now();
         let first = run(

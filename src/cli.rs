@@ -179,6 +179,11 @@ pub fn main(
     args: impl IntoIterator<Item = OsString>,
     script_host: Option<Arc<dyn ScriptHost>>,
 ) -> u8 {
+    let args: Vec<OsString> = args.into_iter().collect();
+    let command_line: Vec<String> = args
+        .iter()
+        .map(|a| a.to_string_lossy().into_owned())
+        .collect();
     let cli = match Cli::try_parse_from(args) {
         Ok(cli) => cli,
         Err(e) => {
@@ -195,7 +200,7 @@ pub fn main(
         eprintln!("error: {why}");
         return EXIT_INVALID;
     }
-    match execute(cli, &registry) {
+    match execute(cli, &registry, &command_line) {
         Ok(code) => code,
         Err(e) => {
             if let Some(errors) = e.downcast_ref::<GraphErrors>() {
@@ -255,7 +260,36 @@ pub fn out_folder(out: Option<PathBuf>, name: &str) -> anyhow::Result<PathBuf> {
     Ok(dir)
 }
 
-fn execute(cli: Cli, registry: &Registry) -> anyhow::Result<u8> {
+/// What this build of fusegraph was made from and how it was called, for
+/// a report's provenance (the engine adds the host, time, graph and plugin
+/// hashes): version, git commit and whether the tree was dirty, rustc,
+/// target, the command line and its `--set` overrides.
+pub fn provenance(
+    command_line: &[String],
+    overrides: &[String],
+) -> serde_json::Map<String, serde_json::Value> {
+    let mut p = serde_json::Map::new();
+    let mut put = |k: &str, v: serde_json::Value| {
+        p.insert(k.into(), v);
+    };
+    put("fusegraph_version", env!("CARGO_PKG_VERSION").into());
+    put("git_commit", env!("FUSEGRAPH_GIT_COMMIT").into());
+    put(
+        "git_dirty",
+        match env!("FUSEGRAPH_GIT_DIRTY") {
+            "true" => true.into(),
+            "false" => false.into(),
+            _ => serde_json::Value::Null,
+        },
+    );
+    put("rustc", env!("FUSEGRAPH_RUSTC").into());
+    put("target", env!("FUSEGRAPH_TARGET").into());
+    put("command_line", command_line.to_vec().into());
+    put("overrides", overrides.to_vec().into());
+    p
+}
+
+fn execute(cli: Cli, registry: &Registry, command_line: &[String]) -> anyhow::Result<u8> {
     match cli.command {
         Command::Run {
             graph,
@@ -282,6 +316,7 @@ fn execute(cli: Cli, registry: &Registry) -> anyhow::Result<u8> {
                 cache,
                 jobs,
                 progress: std::io::stderr().is_terminal() && cli.verbose == 0,
+                provenance: provenance(command_line, &edit.sets),
             };
             let outcome = run(&valid, &options, &MemoryCache::new()).map_err(|e| match e {
                 RunError::Graph(g) => anyhow::Error::new(g),
@@ -319,6 +354,7 @@ fn execute(cli: Cli, registry: &Registry) -> anyhow::Result<u8> {
                 }),
                 jobs,
                 shard,
+                provenance: provenance(command_line, &[]),
             };
             let mine = fusegraph_engine::sweep::shard_of(plan.variants.len(), shard).len();
             eprintln!(

@@ -97,6 +97,33 @@ fn demo_runs_then_is_cached() {
         assert_eq!(status(&r, id), "cached", "{id}");
     }
     assert_eq!(r["metrics"]["focal_mm.value"], 8.0);
+
+    // Where the figures come from, in the report and its page.
+    let p = &r["provenance"];
+    assert_eq!(p["overrides"], serde_json::json!(["fov_mm.value=240"]));
+    assert_eq!(p["command_line"][1], "run");
+    let graph_hash = fusegraph_engine::hash::hash_path(&t.path().join(&g))
+        .unwrap()
+        .to_hex()
+        .to_string();
+    assert_eq!(p["graph_blake3"], graph_hash.as_str());
+    assert!(p["rustc"].as_str().unwrap().starts_with("rustc "), "{p}");
+    assert!(p["started_utc"].as_str().unwrap().ends_with('Z'), "{p}");
+    assert_eq!(p["fusegraph_version"], env!("CARGO_PKG_VERSION"));
+    if let Ok(head) = std::process::Command::new("git")
+        .args(["rev-parse", "HEAD"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        && head.status.success()
+    {
+        assert_eq!(
+            p["git_commit"],
+            String::from_utf8_lossy(&head.stdout).trim(),
+            "the build's commit"
+        );
+    }
+    let page = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(page.contains("<h2>Provenance</h2>") && page.contains(&graph_hash));
 }
 
 #[test]

@@ -21,6 +21,7 @@ pub mod panics;
 pub mod param;
 pub mod plugin;
 pub mod process;
+pub mod provenance;
 pub mod registry;
 pub mod report;
 pub mod report_html;

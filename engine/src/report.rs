@@ -55,6 +55,8 @@ pub struct RunReport {
     pub nodes: Vec<(String, NodeReport)>,
     /// Wall time of the whole run in ms.
     pub total_ms: f64,
+    /// Where the run comes from (see [`crate::provenance`]).
+    pub provenance: serde_json::Map<String, serde_json::Value>,
 }
 
 impl RunReport {
@@ -112,6 +114,7 @@ impl RunReport {
             "warnings": self.note_counts().iter().map(|(_, n)| n).sum::<usize>(),
             "nodes": nodes,
             "metrics": self.metrics(),
+            "provenance": self.provenance,
         })
     }
 }

@@ -230,6 +230,17 @@ pub fn report_html(report: &RunReport, references: &[Reference]) -> String {
         }
     }
     h.push_str("</table>\n");
+    if !report.provenance.is_empty() {
+        h.push_str("<h2>Provenance</h2>\n<table class=\"provenance\">\n");
+        for (k, v) in &report.provenance {
+            let text = match v {
+                serde_json::Value::String(s) => s.clone(),
+                other => other.to_string(),
+            };
+            let _ = writeln!(h, "<tr><th>{}</th><td>{}</td></tr>", esc(k), esc(&text));
+        }
+        h.push_str("</table>\n");
+    }
     let _ = write!(h, "<script>{VIEWER}</script>\n</body></html>\n");
     h
 }
@@ -347,6 +358,7 @@ mod tests {
                 ("bad".into(), node(NodeStatus::Failed, Some("it broke"))),
             ],
             total_ms: 100.0,
+            provenance: Default::default(),
         };
         let refs = [Reference {
             metric: "icp.rmse_mm".into(),

@@ -28,6 +28,10 @@ pub struct RunOptions {
     pub jobs: usize,
     /// Show a progress bar on stderr.
     pub progress: bool,
+    /// What the program knows of where the run comes from (its build's git
+    /// commit, rustc, the command line); the report's `provenance` adds the
+    /// engine's part (see [`crate::provenance`]).
+    pub provenance: serde_json::Map<String, serde_json::Value>,
 }
 
 /// What a run produced: the report, and each node's outputs (`None` where it
@@ -55,6 +59,7 @@ pub fn run_graph(
     })?;
     crate::workdir::Staging::clean_stale(&options.out_dir);
     let start = Instant::now();
+    let started = std::time::SystemTime::now();
     let n = graph.nodes.len();
     let mut successors: Vec<BTreeSet<usize>> = vec![BTreeSet::new(); n];
     for (i, node) in graph.nodes.iter().enumerate() {
@@ -134,6 +139,7 @@ pub fn run_graph(
             .map(|(node, slot)| (node.id.clone(), slot.report.clone()))
             .collect(),
         total_ms: start.elapsed().as_secs_f64() * 1e3,
+        provenance: crate::provenance::provenance(graph, started, &options.provenance),
     };
     Ok(RunOutcome {
         report,

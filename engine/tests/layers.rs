@@ -26,6 +26,7 @@ const LAYERS: &[&[&str]] = &[
         "cache",
         "report",
         "report_html",
+        "provenance",
         "schedule",
         "session",
     ],

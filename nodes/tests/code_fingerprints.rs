@@ -18,6 +18,7 @@ fn statuses(registry: &Registry, dir: &Path) -> BTreeMap<String, NodeStatus> {
         cache: Some(DiskCache::open(&dir.join("cache")).expect("a cache")),
         jobs: 1,
         progress: false,
+        provenance: Default::default(),
     };
     let outcome = run(&valid, &options, &MemoryCache::new()).expect("the run finishes");
     assert!(outcome.report.succeeded());

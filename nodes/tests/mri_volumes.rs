@@ -49,6 +49,7 @@ fn mri_graph_writes_the_stretched_volume_and_the_otsu_mask_with_their_geometry()
         cache: None,
         jobs: 0,
         progress: false,
+        provenance: Default::default(),
     };
     let outcome = run(&graph, &options, &MemoryCache::new()).unwrap();
     assert!(outcome.report.succeeded(), "{:?}", outcome.report);
@@ -105,6 +106,7 @@ fn the_phantom_skin_surface_has_no_self_intersections() {
             cache: None,
             jobs: 0,
             progress: false,
+            provenance: Default::default(),
         };
         let outcome = run(&graph, &options, &MemoryCache::new()).unwrap();
         assert!(outcome.report.succeeded(), "{:?}", outcome.report);

@@ -184,6 +184,23 @@ fn load(
     fusegraph_engine::session::validate_doc(doc, sets, &registry)
 }
 
+/// The build's provenance (see `fusegraph::cli::provenance`), the command
+/// line being Python's own (`sys.argv`), with the Python version.
+fn python_provenance(
+    py: Python<'_>,
+    sets: &[String],
+) -> serde_json::Map<String, serde_json::Value> {
+    let sys = py.import("sys").ok();
+    let argv: Vec<String> = sys
+        .as_ref()
+        .and_then(|s| s.getattr("argv").ok()?.extract().ok())
+        .unwrap_or_default();
+    let mut p = fusegraph::cli::provenance(&argv, sets);
+    let version: Option<String> = sys.and_then(|s| s.getattr("version").ok()?.extract().ok());
+    p.insert("python".into(), version.unwrap_or_default().into());
+    p
+}
+
 /// Runs a graph; see `fusegraph.run`.
 #[pyfunction]
 #[pyo3(signature = (graph, sets, out=None, cache=None, no_cache=false, jobs=0, inputs=None))]
@@ -216,6 +233,7 @@ fn run<'py>(
         cache,
         jobs,
         progress: false,
+        provenance: python_provenance(py, &sets),
     };
     let outcome = py
         .detach(|| fusegraph_engine::session::run(&valid, &options, &MemoryCache::new()))
@@ -292,6 +310,7 @@ fn sweep<'py>(
         cache: (!no_cache).then(|| cache.unwrap_or_else(|| sw::default_cache(&plan))),
         jobs,
         shard: None,
+        provenance: python_provenance(py, &[]),
     };
     let runs = py
         .detach(|| -> Result<_, String> {

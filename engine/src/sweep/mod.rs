@@ -122,6 +122,9 @@ pub struct SweepOptions {
     pub jobs: usize,
     /// `(I, N)`: run the I-th of N slices (I from 1).
     pub shard: Option<(usize, usize)>,
+    /// The program's part of each run's provenance (see
+    /// [`RunOptions::provenance`]); the variant's name and overrides are added.
+    pub provenance: serde_json::Map<String, serde_json::Value>,
 }
 
 /// What one variant's run did.
@@ -227,6 +230,18 @@ pub fn run_sweep(
             cache: Some(cache.clone()),
             jobs: options.jobs,
             progress: false,
+            provenance: {
+                let mut p = options.provenance.clone();
+                p.insert("sweep_file".into(), plan.file.display().to_string().into());
+                p.insert("sweep_variant".into(), variant.name.clone().into());
+                let overrides: Vec<String> = variant
+                    .overrides
+                    .iter()
+                    .map(|(k, v)| format!("{k}={v}"))
+                    .collect();
+                p.insert("overrides".into(), overrides.into());
+                p
+            },
         };
         let start = std::time::Instant::now();
         let outcome = run(&graphs[i], &run_options, &memory);

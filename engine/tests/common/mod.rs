@@ -272,6 +272,7 @@ pub fn run_file(
         cache: cache.map(|c| DiskCache::open(c).unwrap()),
         jobs: 2,
         progress: false,
+        provenance: Default::default(),
     };
     match run(&graph, &options, &MemoryCache::new()) {
         Ok(o) => Ok(o),

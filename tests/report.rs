@@ -102,6 +102,7 @@ fn sample_report() -> RunReport {
             ),
         ],
         total_ms: 2.0,
+        provenance: Default::default(),
     }
 }
 

@@ -106,11 +106,177 @@ enum Command {
         #[arg(long = "set", value_name = "KEY=VALUE")]
         sets: Vec<String>,
     },
+    /// Manage a cache folder: what it holds, removing old entries, checking it.
+    Cache {
+        #[command(subcommand)]
+        what: CacheCommand,
+    },
     /// Measure the engine: scheduler overhead per node, cold and cached.
     Bench {
         #[command(subcommand)]
         what: bench::BenchCommand,
     },
+}
+
+/// `fusegraph cache ...`. DIR is the cache folder [default: .fusegraph/cache;
+/// the shipped graphs' is graphs/.fusegraph/cache].
+#[derive(Subcommand)]
+enum CacheCommand {
+    /// Size, entries, entries and bytes by op, least and most recently used.
+    Stats {
+        /// The cache folder.
+        dir: Option<PathBuf>,
+    },
+    /// Remove the least recently used entries (and their files): those not
+    /// used for --older-than, then more until the cache is under --max-size.
+    /// Safe while other runs use the cache: an entry being computed or used
+    /// within --keep-recent is left alone.
+    Gc {
+        /// The cache folder.
+        dir: Option<PathBuf>,
+        /// Remove entries not used for this long (30d, 12h, 90m).
+        #[arg(long, value_parser = fusegraph_engine::cache_admin::parse_age)]
+        older_than: Option<std::time::Duration>,
+        /// Remove least recently used entries until at most this size (10G, 500M).
+        #[arg(long, value_parser = fusegraph_engine::cache_admin::parse_size)]
+        max_size: Option<u64>,
+        /// Never remove an entry used this recently.
+        #[arg(long, default_value = "1h", value_parser = fusegraph_engine::cache_admin::parse_age)]
+        keep_recent: std::time::Duration,
+        /// Only list what would be removed.
+        #[arg(long)]
+        dry_run: bool,
+    },
+    /// Check every entry's length, checksum and key; list files folders
+    /// without an entry, leases of dead owners and temporaries of dead runs
+    /// (exit 1 when anything is wrong).
+    Verify {
+        /// The cache folder.
+        dir: Option<PathBuf>,
+        /// Remove what was found wrong.
+        #[arg(long)]
+        repair: bool,
+    },
+}
+
+/// `n` bytes for people: `1.3 GiB`.
+fn human_bytes(n: u64) -> String {
+    let units = ["B", "KiB", "MiB", "GiB", "TiB"];
+    let mut x = n as f64;
+    let mut u = 0;
+    while x >= 1024.0 && u + 1 < units.len() {
+        x /= 1024.0;
+        u += 1;
+    }
+    if u == 0 {
+        format!("{n} B")
+    } else {
+        format!("{x:.1} {}", units[u])
+    }
+}
+
+fn cache_command(what: CacheCommand) -> anyhow::Result<u8> {
+    use fusegraph_engine::cache_admin as admin;
+    let dir_or_default =
+        |d: Option<PathBuf>| d.unwrap_or_else(|| Path::new(".fusegraph").join("cache"));
+    let age = |t: std::time::SystemTime| {
+        let secs = std::time::SystemTime::now()
+            .duration_since(t)
+            .map_or(0, |d| d.as_secs());
+        match secs {
+            s if s < 3600 => format!("{} min ago", s / 60),
+            s if s < 86_400 => format!("{:.1} h ago", s as f64 / 3600.0),
+            s => format!("{:.1} days ago", s as f64 / 86_400.0),
+        }
+    };
+    match what {
+        CacheCommand::Stats { dir } => {
+            let dir = dir_or_default(dir);
+            let s = admin::stats(&dir)?;
+            println!(
+                "{}: {} in all (as du -sb counts), {} entries",
+                dir.display(),
+                human_bytes(s.total_bytes),
+                s.entries.len()
+            );
+            if let (Some(old), Some(new)) = (s.entries.first(), s.entries.last()) {
+                println!(
+                    "least recently used {} ({}), most recently {} ({})",
+                    age(old.last_used),
+                    old.op,
+                    age(new.last_used),
+                    new.op
+                );
+            }
+            let mut ops: Vec<_> = s.by_op.iter().collect();
+            ops.sort_by_key(|op| std::cmp::Reverse(op.1.1));
+            println!("{:<32} {:>8} {:>12}", "op", "entries", "size");
+            for (op, (n, bytes)) in ops {
+                println!("{op:<32} {n:>8} {:>12}", human_bytes(*bytes));
+            }
+            Ok(0)
+        }
+        CacheCommand::Gc {
+            dir,
+            older_than,
+            max_size,
+            keep_recent,
+            dry_run,
+        } => {
+            let dir = dir_or_default(dir);
+            if older_than.is_none() && max_size.is_none() {
+                anyhow::bail!("cache gc: give --older-than AGE, --max-size SIZE or both");
+            }
+            let limits = admin::GcLimits {
+                older_than,
+                max_bytes: max_size,
+                keep_recent,
+                dry_run,
+            };
+            let r = admin::gc(&dir, limits, std::time::SystemTime::now())?;
+            println!(
+                "{} {} entries ({}); left {} being computed and {} used within {}",
+                if dry_run { "would remove" } else { "removed" },
+                r.removed.len(),
+                human_bytes(r.removed_bytes),
+                r.busy,
+                r.recent,
+                humantime(keep_recent)
+            );
+            Ok(0)
+        }
+        CacheCommand::Verify { dir, repair } => {
+            let dir = dir_or_default(dir);
+            let r = admin::verify(&dir, repair)?;
+            println!("{}: {} entries checked", dir.display(), r.checked);
+            for (p, why) in &r.corrupt {
+                println!("corrupt: {}: {why}", p.display());
+            }
+            for (what, list) in [
+                ("orphan files folder", &r.orphans),
+                ("stale lease", &r.stale_leases),
+                ("stale temporary", &r.stale_temporaries),
+            ] {
+                for p in list {
+                    println!("{what}: {}", p.display());
+                }
+            }
+            if r.clean() {
+                println!("all well");
+                Ok(0)
+            } else if repair {
+                println!("removed what was wrong");
+                Ok(0)
+            } else {
+                println!("run `fusegraph cache verify --repair` to remove them");
+                Ok(EXIT_FAILED)
+            }
+        }
+    }
+}
+
+fn humantime(d: std::time::Duration) -> String {
+    format!("{:.0} min", d.as_secs_f64() / 60.0)
 }
 
 /// The phantom `fusegraph phantom` writes: `phantom.generate`'s parameters,
@@ -467,6 +633,7 @@ fn execute(cli: Cli, registry: &Registry, command_line: &[String]) -> anyhow::Re
             println!("targets (the lesions, MRI LPS): {}", targets.display());
             Ok(0)
         }
+        Command::Cache { what } => cache_command(what),
         Command::Bench { what } => {
             bench::run_bench(what, registry)?;
             Ok(0)

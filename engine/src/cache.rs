@@ -21,13 +21,15 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
 /// Version of the entry layout and of the value encoding; bump on any change.
-pub const FORMAT_VERSION: u32 = 3;
+pub const FORMAT_VERSION: u32 = 4;
 const MAGIC: &[u8; 8] = b"FUSEGRPH";
 const HEADER_LEN: usize = 8 + 4 + 8 + 32;
 
 /// What a node produced: its outputs, metrics and figures.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct CacheEntry {
+    /// The op that computed it (for `fusegraph cache stats`).
+    pub op: String,
     /// Output values by port.
     pub outputs: Outputs,
     /// Metrics by name.
@@ -138,7 +140,12 @@ impl DiskCache {
         let path = self.entry_path(key);
         match read_entry_bytes(&path) {
             Ok(Ok(bytes)) => match decode_entry(&bytes, key) {
-                Ok(entry) => Lookup::Hit(self.with_paths(entry, PathsTo::Absolute)),
+                Ok(entry) => {
+                    // Reading an entry marks it used: `fusegraph cache gc`
+                    // removes the least recently used first.
+                    mark_used(&path);
+                    Lookup::Hit(self.with_paths(entry, PathsTo::Absolute))
+                }
                 Err(why) => Lookup::Corrupt(format!("{}: {why}", path.display())),
             },
             Ok(Err(why)) => Lookup::Corrupt(format!("{}: {why}", path.display())),
@@ -180,6 +187,18 @@ impl DiskCache {
             }
         }
         entry
+    }
+
+    /// Why the entry for `key` is not a whole, valid entry of that key
+    /// (`None`: it is, or there is none), without marking it used.
+    pub fn check(&self, key: &NodeKey) -> Option<String> {
+        let path = self.entry_path(key);
+        match read_entry_bytes(&path) {
+            Ok(Ok(bytes)) => decode_entry(&bytes, key).err(),
+            Ok(Err(why)) => Some(why),
+            Err(e) if e.kind() == io::ErrorKind::NotFound => None,
+            Err(e) => Some(e.to_string()),
+        }
     }
 
     /// Removes the entry for `key`, if any.
@@ -235,6 +254,8 @@ fn encode_entry(key: &NodeKey, entry: &CacheEntry) -> Vec<u8> {
     let mut payload = Vec::new();
     payload.extend_from_slice(&key.0);
     let mut w = Writer(&mut payload);
+    // First after the key, so `fusegraph cache stats` reads it without the rest.
+    w.str(&entry.op);
     w.usize(entry.metrics.len());
     for (name, value) in &entry.metrics {
         w.str(name);
@@ -315,7 +336,10 @@ fn decode_entry(bytes: &[u8], key: &NodeKey) -> Result<CacheEntry, String> {
     }
     let mut r = Reader::new(&payload[32..]);
     let err = |e: crate::value::CodecError| e.to_string();
-    let mut entry = CacheEntry::default();
+    let mut entry = CacheEntry {
+        op: r.str().map_err(err)?,
+        ..CacheEntry::default()
+    };
     for _ in 0..r.usize().map_err(err)? {
         let name = r.str().map_err(err)?;
         entry.metrics.insert(name, r.f64().map_err(err)?);
@@ -348,6 +372,16 @@ fn decode_entry(bytes: &[u8], key: &NodeKey) -> Result<CacheEntry, String> {
         .collect::<Result<_, _>>()?;
     entry.notes = notes.into();
     Ok(entry)
+}
+
+/// Marks the entry file at `path` used now (its modification time), for
+/// the least-recently-used order of `fusegraph cache gc`. A cache on a
+/// read-only mount stays as it is.
+fn mark_used(path: &Path) {
+    let _ = std::fs::File::options()
+        .write(true)
+        .open(path)
+        .and_then(|f| f.set_modified(std::time::SystemTime::now()));
 }
 
 #[cfg(test)]

@@ -20,6 +20,13 @@ impl NodeKey {
     pub fn hex(&self) -> String {
         blake3::Hash::from_bytes(self.0).to_hex().to_string()
     }
+
+    /// The key written as [`NodeKey::hex`] writes it.
+    pub fn from_hex(hex: &str) -> Option<NodeKey> {
+        blake3::Hash::from_hex(hex)
+            .ok()
+            .map(|h| NodeKey(*h.as_bytes()))
+    }
 }
 
 impl fmt::Debug for NodeKey {

@@ -123,7 +123,7 @@ pub fn try_acquire(path: &Path) -> io::Result<Acquired> {
 }
 
 /// Whether the lease at `path` has no live owner.
-fn is_stale(path: &Path) -> bool {
+pub fn is_stale(path: &Path) -> bool {
     let Ok(text) = std::fs::read_to_string(path) else {
         return false; // being written, or just released
     };

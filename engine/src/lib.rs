@@ -8,6 +8,7 @@
 
 pub mod atomic;
 pub mod cache;
+pub mod cache_admin;
 pub mod dot;
 pub mod each;
 pub mod error;

@@ -308,6 +308,7 @@ impl<'a> Executor<'a> {
             }
         };
         let entry = Arc::new(CacheEntry {
+            op: spec.name.clone(),
             outputs,
             metrics: results.metrics,
             figures: results.figures.into(),

@@ -24,6 +24,7 @@ const LAYERS: &[&[&str]] = &[
         "workdir",
         "lease",
         "cache",
+        "cache_admin",
         "report",
         "report_html",
         "provenance",

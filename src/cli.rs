@@ -473,8 +473,7 @@ fn execute(cli: Cli, registry: &Registry, command_line: &[String]) -> anyhow::Re
             let cache = if no_cache {
                 None
             } else {
-                let dir =
-                    cache.unwrap_or_else(|| graph_dir(&graph).join(".fusegraph").join("cache"));
+                let dir = cache.unwrap_or_else(|| fusegraph_engine::cache::default_dir(&graph));
                 Some(DiskCache::open(&dir)?)
             };
             let options = RunOptions {
@@ -714,14 +713,6 @@ fn folder_name(name: &str) -> String {
     } else {
         safe
     }
-}
-
-pub fn graph_dir(graph: &Path) -> PathBuf {
-    graph
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."))
-        .to_path_buf()
 }
 
 fn init_logging(verbose: u8) {

@@ -20,6 +20,16 @@ use std::io;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
+/// The cache a graph file uses by default: `.fusegraph/cache` beside it.
+pub fn default_dir(graph_file: &Path) -> PathBuf {
+    graph_file
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."))
+        .join(".fusegraph")
+        .join("cache")
+}
+
 /// Version of the entry layout and of the value encoding; bump on any change.
 pub const FORMAT_VERSION: u32 = 4;
 const MAGIC: &[u8; 8] = b"FUSEGRPH";
@@ -372,6 +382,27 @@ fn decode_entry(bytes: &[u8], key: &NodeKey) -> Result<CacheEntry, String> {
         .collect::<Result<_, _>>()?;
     entry.notes = notes.into();
     Ok(entry)
+}
+
+/// The op an entry file records, read from the start of its payload (the
+/// header, the key, then the op's name) without the rest; `None` for a file
+/// that is not an entry.
+pub(crate) fn entry_op(path: &Path) -> Option<String> {
+    use std::io::Read;
+    let mut f = std::fs::File::open(path).ok()?;
+    let mut head = [0u8; HEADER_LEN + 32 + 8];
+    f.read_exact(&mut head).ok()?;
+    if &head[..8] != MAGIC {
+        return None;
+    }
+    let len = u64::from_le_bytes(head[HEADER_LEN + 32..].try_into().ok()?) as usize;
+    // An op name is `stage.action`: a longer one is a damaged entry.
+    if len > 4096 {
+        return None;
+    }
+    let mut name = vec![0u8; len];
+    f.read_exact(&mut name).ok()?;
+    String::from_utf8(name).ok()
 }
 
 /// Marks the entry file at `path` used now (its modification time), for

@@ -76,22 +76,6 @@ fn apparent_bytes(path: &Path) -> u64 {
     total
 }
 
-/// The op name an entry file records (read from the start of its payload:
-/// header, key, then the op's name).
-fn entry_op(path: &Path) -> Option<String> {
-    use std::io::Read;
-    let mut f = std::fs::File::open(path).ok()?;
-    let mut head = [0u8; 52 + 32 + 8];
-    f.read_exact(&mut head).ok()?;
-    let len = u64::from_le_bytes(head[84..92].try_into().ok()?) as usize;
-    if len > 4096 {
-        return None;
-    }
-    let mut name = vec![0u8; len];
-    f.read_exact(&mut name).ok()?;
-    String::from_utf8(name).ok()
-}
-
 /// Every entry of the cache at `dir`.
 fn entries(v: &Path) -> Vec<(PathBuf, EntryInfo)> {
     let mut out = Vec::new();
@@ -120,7 +104,7 @@ fn entries(v: &Path) -> Vec<(PathBuf, EntryInfo)> {
             let Ok(meta) = e.metadata() else { continue };
             let files = v.join("files").join(&key);
             let info = EntryInfo {
-                op: entry_op(&path).unwrap_or_else(|| "?".into()),
+                op: crate::cache::entry_op(&path).unwrap_or_else(|| "?".into()),
                 bytes: meta.len() + apparent_bytes(&files),
                 last_used: meta.modified().unwrap_or(SystemTime::UNIX_EPOCH),
                 key,
@@ -269,25 +253,26 @@ impl VerifyReport {
     }
 }
 
-/// Whether a temporary name `.…<pid>.<n>.tmp` (an atomic write) or
-/// `.tmp-<key>-<host>-<pid>-<n>` (a node's files) belongs to a process of
-/// this host that is gone.
-fn dead_temporary(name: &str) -> bool {
-    let host = crate::process::host_name();
-    let pid = if let Some(rest) = name.strip_prefix(".tmp-") {
-        let parts: Vec<&str> = rest.split('-').collect();
-        match parts[..] {
-            [_, h, pid, _] if h == host => pid.parse::<u32>().ok(),
-            _ => None,
-        }
-    } else if name.starts_with('.') && name.ends_with(".tmp") {
-        let parts: Vec<&str> = name.rsplitn(4, '.').collect();
-        // ["tmp", n, pid, rest]
-        parts.get(2).and_then(|p| p.parse::<u32>().ok())
-    } else {
-        None
-    };
-    pid.is_some_and(|p| p != std::process::id() && !crate::process::process_alive(p))
+/// The age after which an atomic write's temporary file (`.<name>.<pid>.<n>.tmp`,
+/// which names no host, so a pid cannot be checked on a shared cache) is
+/// taken as left by a dead run: no write takes this long.
+const ABANDONED_WRITE: Duration = Duration::from_secs(3600);
+
+/// Whether the file or folder at `path` (named `name`) is a temporary a
+/// dead run left: a node's files folder `.tmp-<key>-<host>-<pid>-<n>` of
+/// this host whose process is gone, or an atomic write's temporary file
+/// older than [`ABANDONED_WRITE`].
+fn dead_temporary(path: &Path, name: &str) -> bool {
+    if name.starts_with(".tmp-") {
+        return crate::workdir::left_by_dead_run(name, ".tmp-");
+    }
+    name.starts_with('.')
+        && name.ends_with(".tmp")
+        && std::fs::metadata(path)
+            .and_then(|m| m.modified())
+            .ok()
+            .and_then(|t| t.elapsed().ok())
+            .is_some_and(|age| age > ABANDONED_WRITE)
 }
 
 /// Checks every entry of the cache at `dir` (length, checksum, key), and
@@ -321,7 +306,7 @@ pub fn verify(dir: &Path, repair: bool) -> io::Result<VerifyReport> {
         .flatten()
     {
         let name = e.file_name().to_string_lossy().into_owned();
-        if dead_temporary(&name) {
+        if dead_temporary(&e.path(), &name) {
             report.stale_temporaries.push(e.path());
         } else if !name.starts_with('.') && !keys.contains(&name) {
             report.orphans.push(e.path());
@@ -345,7 +330,7 @@ pub fn verify(dir: &Path, repair: bool) -> io::Result<VerifyReport> {
             .flatten()
             .flatten()
         {
-            if dead_temporary(&e.file_name().to_string_lossy()) {
+            if dead_temporary(&e.path(), &e.file_name().to_string_lossy()) {
                 report.stale_temporaries.push(e.path());
             }
         }
@@ -434,14 +419,23 @@ mod tests {
 
     #[test]
     fn temporaries_of_dead_processes_are_recognised() {
-        // pid 4194304 is above Linux's largest (2^22): never alive.
-        assert!(dead_temporary(".abc.entry.4194304.7.tmp"));
+        let dir = tempfile::tempdir().unwrap();
         let host = crate::process::host_name();
-        assert!(dead_temporary(&format!(".tmp-ab12-{host}-4194304-0")));
-        assert!(!dead_temporary(&format!(
-            ".abc.entry.{}.7.tmp",
-            std::process::id()
-        )));
-        assert!(!dead_temporary("ab12cd.entry"));
+        // pid 4194304 is above Linux's largest (2^22): never alive.
+        let dead = format!(".tmp-ab12-{host}-4194304-0");
+        assert!(dead_temporary(&dir.path().join(&dead), &dead));
+        let mine = format!(".tmp-ab12-{host}-{}-0", std::process::id());
+        assert!(!dead_temporary(&dir.path().join(&mine), &mine));
+        // An atomic write's temporary: judged by its age, not its pid.
+        let write = dir.path().join(".abc.entry.4194304.7.tmp");
+        let f = std::fs::File::create(&write).unwrap();
+        assert!(!dead_temporary(&write, ".abc.entry.4194304.7.tmp"));
+        f.set_modified(SystemTime::now() - 2 * ABANDONED_WRITE)
+            .unwrap();
+        assert!(dead_temporary(&write, ".abc.entry.4194304.7.tmp"));
+        assert!(!dead_temporary(
+            &dir.path().join("ab12cd.entry"),
+            "ab12cd.entry"
+        ));
     }
 }

@@ -72,10 +72,20 @@ pub fn with_graph_plugins<'a>(
     doc: &GraphDoc,
     registry: &'a Registry,
 ) -> Result<std::borrow::Cow<'a, Registry>, GraphErrors> {
-    let mut registry = with_plugins(&doc.plugins, &doc.file, registry)?;
-    if !doc.python.is_empty() {
-        crate::script::load_scripts(&doc.python, registry.to_mut())
-            .map_err(|why| GraphError::file(ErrorKind::Plugin, &doc.file, why).at_key("python"))?;
+    let registry = with_plugins(&doc.plugins, &doc.file, registry)?;
+    with_scripts(&doc.python, &doc.file, registry)
+}
+
+/// `registry` with the Python files `files` loaded by its script host;
+/// errors name `named_by` (the graph or sweep file) and its key `python`.
+pub fn with_scripts<'a>(
+    files: &[std::path::PathBuf],
+    named_by: &Path,
+    mut registry: std::borrow::Cow<'a, Registry>,
+) -> Result<std::borrow::Cow<'a, Registry>, GraphErrors> {
+    if !files.is_empty() {
+        crate::script::load_scripts(files, registry.to_mut())
+            .map_err(|why| GraphError::file(ErrorKind::Plugin, named_by, why).at_key("python"))?;
     }
     Ok(registry)
 }

@@ -37,30 +37,31 @@ fn clean_stale(dir: &Path, prefix: &str) -> usize {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return 0;
     };
-    let host = host_name();
     let mut removed = 0;
     for entry in entries.flatten() {
         let name = entry.file_name().to_string_lossy().into_owned();
-        let Some(rest) = name.strip_prefix(prefix) else {
-            continue;
-        };
-        // <key>-<host>-<pid>-<n>; the host may hold '-' only as '_'.
-        let parts: Vec<&str> = rest.split('-').collect();
-        let [_key, h, pid, _n] = parts[..] else {
-            continue;
-        };
-        let Ok(pid) = pid.parse::<u32>() else {
-            continue;
-        };
-        if h == host
-            && pid != std::process::id()
-            && !process_alive(pid)
-            && std::fs::remove_dir_all(entry.path()).is_ok()
-        {
+        if left_by_dead_run(&name, prefix) && std::fs::remove_dir_all(entry.path()).is_ok() {
             removed += 1;
         }
     }
     removed
+}
+
+/// Whether `name` is a private folder `<prefix><key>-<host>-<pid>-<n>` of
+/// this host whose process is gone (another host's are never judged here).
+pub fn left_by_dead_run(name: &str, prefix: &str) -> bool {
+    let Some(rest) = name.strip_prefix(prefix) else {
+        return false;
+    };
+    // <key>-<host>-<pid>-<n>; the host may hold '-' only as '_'.
+    let parts: Vec<&str> = rest.split('-').collect();
+    let [_key, h, pid, _n] = parts[..] else {
+        return false;
+    };
+    let Ok(pid) = pid.parse::<u32>() else {
+        return false;
+    };
+    h == host_name() && pid != std::process::id() && !process_alive(pid)
 }
 
 /// A node's files folder: a temporary location while it runs, a final one after.

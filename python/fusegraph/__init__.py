@@ -31,6 +31,7 @@ from ._values import (
     Camera, Labels, Markers, Mask, Matches, Mesh, PointCloud, Rectification,
     StereoRig, Transform, Volume, from_native, to_native,
 )
+from ._values import _CLASSES
 
 GraphError = _native.GraphError
 
@@ -137,10 +138,7 @@ def _path(p: Optional[PathLike]) -> Optional[str]:
 def _given(key: str, value: Any) -> Tuple[str, Any]:
     if isinstance(value, tuple) and len(value) == 2 and isinstance(value[0], str):
         ty, v = value
-    elif type(value).__name__ in (
-        "Volume", "Mask", "Labels", "Mesh", "PointCloud", "Markers", "Matches",
-        "Camera", "StereoRig", "Rectification", "Transform",
-    ):
+    elif type(value).__name__ in _CLASSES:
         ty, v = type(value).__name__, value
     elif isinstance(value, (int, float)):
         ty, v = "Scalar", value

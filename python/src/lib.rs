@@ -50,13 +50,7 @@ fn registry() -> PyResult<Registry> {
 /// Where a run or sweep keeps its cache: `cache`, none, or `.fusegraph/cache`
 /// beside `file` (as the command line does).
 fn cache_dir(file: &Path, cache: Option<PathBuf>, no_cache: bool) -> Option<PathBuf> {
-    (!no_cache).then(|| {
-        cache.unwrap_or_else(|| {
-            fusegraph::cli::graph_dir(file)
-                .join(".fusegraph")
-                .join("cache")
-        })
-    })
+    (!no_cache).then(|| cache.unwrap_or_else(|| fusegraph_engine::cache::default_dir(file)))
 }
 
 /// Puts `given` (`"node.port"` -> value in the plain Python form) in place

@@ -221,6 +221,18 @@ fn rows<T: Element + Copy>(d: &Bound<'_, PyDict>, key: &str, width: usize) -> Re
     Ok(data)
 }
 
+/// [`rows`] of an optional field: `None` when absent or `None`.
+fn optional_rows<T: Element + Copy>(
+    d: &Bound<'_, PyDict>,
+    key: &str,
+    width: usize,
+) -> Result<Option<Arc<[T]>>, Why> {
+    Ok(match optional(d, key)? {
+        Some(_) => Some(rows::<T>(d, key, width)?.into()),
+        None => None,
+    })
+}
+
 fn fixed<const R: usize, const C: usize>(
     d: &Bound<'_, PyDict>,
     key: &str,
@@ -351,14 +363,10 @@ pub fn from_py(obj: &Bound<'_, PyAny>, ty: ValueType) -> Result<Value, Why> {
         }
         ValueType::Mesh => {
             let d = dict()?;
-            let normals = match optional(d, "normals")? {
-                Some(_) => Some(rows::<f32>(d, "normals", 3)?.into()),
-                None => None,
-            };
             Mesh::new(
                 rows::<f32>(d, "vertices", 3)?,
                 rows::<u32>(d, "triangles", 3)?,
-                normals,
+                optional_rows(d, "normals", 3)?,
                 text(d, "frame", "")?,
             )
             .map_err(bad)?

@@ -15,6 +15,7 @@ import sys
 import tempfile
 import textwrap
 import threading
+import time
 import unittest
 
 import numpy as np
@@ -226,27 +227,42 @@ class Runs(unittest.TestCase):
         self.assertIn("nowhere", str(e.exception))
 
     def test_the_gil_is_free_while_a_graph_runs(self):
-        graph = write(self.dir, "gil.toml", THRESHOLD_GRAPH)
-        ticks = []
-        done = threading.Event()
-
-        def count():
-            while not done.is_set():
-                ticks.append(1)
-                done.wait(0.001)
+        # A Rust node that computes for a while (a held GIL would not
+        # deadlock it), with nothing to load or convert around it.
+        graph = write(self.dir, "gil.toml", """
+            [node.mc]
+            op = "design.baseline_monte_carlo"
+            baselines_mm = [50.0]
+            points = 2000
+            repetitions = 200
+        """)
+        # Another thread runs the graph; this one keeps running Python and
+        # notes when. Were the GIL held during the engine's run, no note
+        # could fall inside it but near its ends (one switch interval).
+        span = {}
 
         def run():
-            fusegraph.run(graph, out=self.dir / "g", no_cache=True,
-                          inputs={"src.volume": ball_volume(48)})
+            span["start"] = time.perf_counter()
+            span["native"] = fusegraph._native.run(str(graph), [], str(self.dir / "g"), None, True, 1)
+            span["end"] = time.perf_counter()
 
-        counter = threading.Thread(target=count)
-        counter.start()
-        before = len(ticks)
-        run()
-        during = len(ticks) - before
-        done.set()
-        counter.join()
-        self.assertGreater(during, 0, "Python threads stood still while the graph ran")
+        switch = sys.getswitchinterval()
+        sys.setswitchinterval(1e-4)
+        notes = []
+        try:
+            worker = threading.Thread(target=run)
+            worker.start()
+            while worker.is_alive():
+                notes.append(time.perf_counter())
+            worker.join()
+        finally:
+            sys.setswitchinterval(switch)
+        self.assertTrue(span["native"]["succeeded"])
+        length = span["end"] - span["start"]
+        self.assertGreater(length, 0.02, "the run is too short to tell")
+        middle = (span["start"] + 0.25 * length, span["end"] - 0.25 * length)
+        inside = sum(1 for t in notes if middle[0] < t < middle[1])
+        self.assertGreater(inside, 0, "Python threads stood still while the graph ran")
 
 
 class Errors(unittest.TestCase):

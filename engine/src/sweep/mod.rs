@@ -21,7 +21,7 @@ use crate::graph::GraphDoc;
 use crate::registry::Registry;
 use crate::report::NodeStatus;
 use crate::schedule::RunOptions;
-use crate::session::{RunError, run, with_graph_plugins, with_plugins};
+use crate::session::{RunError, run, with_graph_plugins, with_plugins, with_scripts};
 use crate::validate::{ValidGraph, validate};
 pub use plan::{Better, SweepPlan, Variant, load_sweep};
 use std::path::{Path, PathBuf};
@@ -31,13 +31,8 @@ pub fn validate_variants(
     plan: &SweepPlan,
     registry: &Registry,
 ) -> Result<Vec<ValidGraph>, GraphErrors> {
-    let mut registry = with_plugins(&plan.plugins, &plan.file, registry)?;
-    if !plan.python.is_empty() {
-        crate::script::load_scripts(&plan.python, registry.to_mut()).map_err(|why| {
-            crate::error::GraphError::file(crate::error::ErrorKind::Plugin, &plan.file, why)
-                .at_key("python")
-        })?;
-    }
+    let registry = with_plugins(&plan.plugins, &plan.file, registry)?;
+    let registry = with_scripts(&plan.python, &plan.file, registry)?;
     let doc = GraphDoc::load(&plan.graph)?;
     let registry = with_graph_plugins(&doc, &registry)?;
     let mut graphs = Vec::new();
@@ -293,12 +288,7 @@ fn tempfile_dir(out: &Path) -> std::io::Result<PathBuf> {
 /// The default cache of a sweep: `.fusegraph/cache` beside its base graph,
 /// as `fusegraph run` uses.
 pub fn default_cache(plan: &SweepPlan) -> PathBuf {
-    plan.graph
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."))
-        .join(".fusegraph")
-        .join("cache")
+    crate::cache::default_dir(&plan.graph)
 }
 
 /// Writes the comparison files into `dir`.

@@ -121,6 +121,22 @@ pub enum BenchCommand {
         #[arg(long)]
         paths: Option<i64>,
     },
+    /// `stereo.refine_slanted` with its defaults on the maps the main job
+    /// gives it (stereo.sgm, then stereo.fill_disparity): time (best of
+    /// --repeat), share refined, and bad-1 / bad-2 / MAE before and after,
+    /// on the pairs `bench sgm` uses (a phantom view and the Middlebury
+    /// pairs in tests/data/stereo).
+    Refine {
+        /// Repetitions; the best time is reported.
+        #[arg(long, default_value_t = 3, value_parser = count::<1000>)]
+        repeat: usize,
+        /// Gauss-Newton iterations instead of the default.
+        #[arg(long)]
+        iterations: Option<usize>,
+        /// Largest window side instead of the default, px.
+        #[arg(long)]
+        max_window_px: Option<usize>,
+    },
     /// Chessboard detection (calib.find_chessboard) on every image of a
     /// folder, on one thread, decoding included: each image's outcome and the
     /// time per image (best of --repeat); --out writes corners.csv.
@@ -320,6 +336,19 @@ pub fn run_bench(what: BenchCommand, registry: &Registry) -> anyhow::Result<()> 
                 _ => crate::bench_sgm::default_cases(&folder)?,
             };
             crate::bench_sgm::run(&cases, repeat, paths, &folder)
+        }
+        BenchCommand::Refine {
+            repeat,
+            iterations,
+            max_window_px,
+        } => {
+            let dir = tempfile::tempdir()?;
+            let cases = crate::bench_sgm::default_cases(dir.path())?;
+            let overrides = crate::bench_refine::Overrides {
+                iterations,
+                max_window_px,
+            };
+            crate::bench_refine::run(&cases, repeat, overrides)
         }
         BenchCommand::Chessboard {
             dir,

@@ -6,6 +6,7 @@ mod bench;
 mod bench_calibration;
 mod bench_chessboard;
 mod bench_phantom;
+mod bench_refine;
 mod bench_sgm;
 pub mod cli;
 mod list;

@@ -11,7 +11,7 @@ use fusegraph_engine::value::{Disparity, Image};
 /// fronto-parallel bias on slanted surfaces, and windows that grow on weak
 /// texture while they fit -> Disparity
 #[derive(Debug, Clone, PartialEq, Op)]
-#[op(name = "stereo.refine_slanted", version = 4)]
+#[op(name = "stereo.refine_slanted", version = 5)]
 pub struct RefineSlanted {
     /// Smallest window side (odd)
     #[param(default = 9, unit = "px", min = 3, max = 31)]
@@ -25,8 +25,11 @@ pub struct RefineSlanted {
     /// (sqrt(2) noise / gradient energy^0.5)
     #[param(default = 0.05, unit = "px", min = 0.0)]
     pub target_px: f64,
-    /// Gauss-Newton iterations
-    #[param(default = 4, min = 1, max = 20)]
+    /// Gauss-Newton iterations. One step from the smoothed map is the
+    /// default: further steps reach the minimum of the linearly
+    /// interpolated cost, which leans towards whole pixels (measured worse:
+    /// Middlebury cones MAE 0.373 -> 0.379 px, lab phantom TRE 0.30 -> 0.33 mm)
+    #[param(default = 1, min = 1, max = 20)]
     pub iterations: usize,
     /// Largest change from the input disparity; beyond it the input is kept
     #[param(default = 1.0, unit = "px", min = 0.0)]

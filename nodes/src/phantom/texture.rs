@@ -24,16 +24,23 @@ impl ValueNoise {
         ValueNoise { seed }
     }
 
+    /// The hash's state after mixing in one more coordinate.
+    fn mix(h: u64, v: i64) -> u64 {
+        let h = (h ^ v as u64).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        h ^ (h >> 31)
+    }
+
+    /// The lattice value from the hash's state after all three coordinates,
+    /// in [0, 1).
+    fn finish(h: u64) -> f64 {
+        let h = h.wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((h ^ (h >> 29)) >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    #[cfg(test)]
     fn lattice(&self, x: i64, y: i64, z: i64) -> f64 {
-        let mut h = self.seed ^ 0x9E37_79B9_7F4A_7C15;
-        for v in [x, y, z] {
-            h ^= v as u64;
-            h = h.wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            h ^= h >> 31;
-        }
-        h = h.wrapping_mul(0x94D0_49BB_1331_11EB);
-        h ^= h >> 29;
-        (h >> 11) as f64 / (1u64 << 53) as f64
+        let h = self.seed ^ 0x9E37_79B9_7F4A_7C15;
+        Self::finish(Self::mix(Self::mix(Self::mix(h, x), y), z))
     }
 
     /// Noise at `p` (mm) with lattice spacing `1 / frequency` mm.
@@ -46,13 +53,26 @@ impl ValueNoise {
             smooth(q.y - iy as f64),
             smooth(q.z - iz as f64),
         );
+        // The corners share their hashes' prefixes: 2 states after x, 4
+        // after y, 8 after z (14 mixes instead of 24).
+        let start = self.seed ^ 0x9E37_79B9_7F4A_7C15;
+        let mut value = [0.0; 8];
+        for dx in 0..2 {
+            let hx = Self::mix(start, ix + dx);
+            for dy in 0..2 {
+                let hy = Self::mix(hx, iy + dy);
+                for dz in 0..2 {
+                    value[(dx | dy << 1 | dz << 2) as usize] = Self::finish(Self::mix(hy, iz + dz));
+                }
+            }
+        }
         let mut acc = 0.0;
-        for corner in 0..8 {
+        for (corner, v) in value.iter().enumerate() {
             let (dx, dy, dz) = (corner & 1, (corner >> 1) & 1, corner >> 2);
             let w = if dx == 1 { tx } else { 1.0 - tx }
                 * if dy == 1 { ty } else { 1.0 - ty }
                 * if dz == 1 { tz } else { 1.0 - tz };
-            acc += w * self.lattice(ix + dx, iy + dy, iz + dz);
+            acc += w * v;
         }
         acc
     }
@@ -74,6 +94,42 @@ impl ValueNoise {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The noise as first written: each corner hashed on its own.
+    fn noise_by_corners(n: &ValueNoise, p: &Point3<f64>, frequency: f64) -> f64 {
+        let q = p.coords * frequency;
+        let (ix, iy, iz) = (fast_floor(q.x), fast_floor(q.y), fast_floor(q.z));
+        let smooth = |t: f64| t * t * (3.0 - 2.0 * t);
+        let (tx, ty, tz) = (
+            smooth(q.x - ix as f64),
+            smooth(q.y - iy as f64),
+            smooth(q.z - iz as f64),
+        );
+        let mut acc = 0.0;
+        for corner in 0..8i64 {
+            let (dx, dy, dz) = (corner & 1, (corner >> 1) & 1, corner >> 2);
+            let w = if dx == 1 { tx } else { 1.0 - tx }
+                * if dy == 1 { ty } else { 1.0 - ty }
+                * if dz == 1 { tz } else { 1.0 - tz };
+            acc += w * n.lattice(ix + dx, iy + dy, iz + dz);
+        }
+        acc
+    }
+
+    #[test]
+    fn shared_hash_prefixes_give_the_same_bits() {
+        let n = ValueNoise::new(11);
+        for i in 0..5000 {
+            let p = Point3::new(
+                i as f64 * 0.731 - 900.0,
+                (i as f64 * 0.013).cos() * 300.0,
+                i as f64 * -0.217,
+            );
+            for f in [1.0 / 40.0, 1.0 / 1.6, 2.5] {
+                assert_eq!(n.at(&p, f).to_bits(), noise_by_corners(&n, &p, f).to_bits());
+            }
+        }
+    }
 
     #[test]
     fn noise_is_bounded_smooth_and_seeded() {

@@ -6,6 +6,9 @@
 #
 #   cargo build --release
 #   bench/side_by_side.sh [ROUNDS]        # default 3; writes under /tmp/fusegraph-side-by-side
+#
+# OLD_FUSEGRAPH=path/to/an/older/release/fusegraph adds the main job cold
+# (graphs/fusion.toml, no cache) run by that build and this one, alternating.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 rounds=${1:-3}
@@ -38,4 +41,26 @@ for round in $(seq "$rounds"); do
   "$py" bench/opencv_calibrate.py "$work/calib/pairs.csv" --repeat 10 | tail -1 | sed 's/^/opencv: /'
   "$fg" bench camera-calibration ../shared/data/chessboard_mono --repeat 10 --out "$work/mono" | tail -2 | head -1 | sed 's/^/ours, real photos: /'
   "$py" bench/opencv_calibrate.py "$work/mono/views.csv" --repeat 10 | tail -1 | sed 's/^/opencv, real photos: /'
+  # small_gicp on the same clouds, one thread and two; ours on one thread too.
+  RAYON_NUM_THREADS=1 "$fg" bench icp --points 100000 --iterations 30 --out "$work/icp" | grep -E "ms per iteration" | sed 's/^/ours 1 thread:/'
+  "$py" "$peers" --repeat 3 smallgicp "$work/icp/source.ply" "$work/icp/target.ply" --iters 30 --threads 1 | sed 's/^/1 thread: /'
+  "$py" "$peers" --repeat 3 smallgicp "$work/icp/source.ply" "$work/icp/target.ply" --iters 30 --threads 2 | sed 's/^/2 threads: /'
+  # SGM: the phantom's 800 x 600 pair (128 disparities), cones and teddy,
+  # ours on one thread and two, OpenCV's StereoSGBM (single-threaded) on the
+  # very pairs ours wrote.
+  RAYON_NUM_THREADS=1 "$fg" bench sgm --repeat 5 --out "$work/sgm" | grep -v 'peer:' | sed 's/^/ours 1 thread: /'
+  "$fg" bench sgm --repeat 5 --out "$work/sgm" > "$work/sgm.txt"
+  grep -v 'peer:' "$work/sgm.txt" | sed 's/^/ours: /'
+  grep 'peer:' "$work/sgm.txt" | sed 's/.*peer: peers.py //' | while read -r args; do
+    # shellcheck disable=SC2086
+    "$py" "$peers" --repeat 5 $args </dev/null
+  done
+  if [ -n "${OLD_FUSEGRAPH:-}" ]; then
+    for build in "$OLD_FUSEGRAPH" "$fg"; do
+      rm -rf "$work/main"
+      start=$(date +%s%N)
+      "$build" run graphs/fusion.toml --no-cache --out "$work/main" >/dev/null 2>&1 || true
+      echo "main job cold, $build: $((($(date +%s%N) - start) / 1000000)) ms"
+    done
+  fi
 done

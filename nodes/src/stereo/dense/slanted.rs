@@ -251,6 +251,8 @@ struct ShapeFit {
     /// costly part: this runs for every pixel and window size): the
     /// coefficients are `solve * samples`.
     solve: Option<SMatrix<f64, 6, { (SHAPE_GRID * SHAPE_GRID) as usize }>>,
+    /// The normal equations' sum over every sample, unpinned.
+    normal_all: SMatrix<f64, 6, 6>,
     quadratic: bool,
     /// Half-window, px.
     scale: f64,
@@ -274,10 +276,14 @@ impl ShapeFit {
                 SVector::<f64, 6>::from([1.0, u, v, bend * u * u, bend * u * v, bend * v * v])
             })
             .collect();
+        let normal_all = terms
+            .iter()
+            .fold(SMatrix::<f64, 6, 6>::zeros(), |a, t| a + t * t.transpose());
         let mut fit = ShapeFit {
             offsets,
             terms,
             solve: None,
+            normal_all,
             quadratic,
             scale,
         };
@@ -292,9 +298,19 @@ impl ShapeFit {
 
     /// The normal equations' matrix over the samples `used`.
     fn normal_matrix(&self, used: &[bool]) -> SMatrix<f64, 6, 6> {
+        let left_out = used.iter().filter(|u| !**u).count();
         let mut a = SMatrix::<f64, 6, 6>::zeros();
-        for (t, _) in self.terms.iter().zip(used).filter(|(_, u)| **u) {
-            a += t * t.transpose();
+        if left_out * 2 < used.len() {
+            // Most samples used (the common case: a few off the shape):
+            // every sample's sum less the few left out.
+            a = self.normal_all;
+            for (t, _) in self.terms.iter().zip(used).filter(|(_, u)| !**u) {
+                a -= t * t.transpose();
+            }
+        } else {
+            for (t, _) in self.terms.iter().zip(used).filter(|(_, u)| **u) {
+                a += t * t.transpose();
+            }
         }
         if !self.quadratic {
             // The bend's terms are zero: pin them.

@@ -8,7 +8,9 @@
 #   bench/side_by_side.sh [ROUNDS]        # default 3; writes under /tmp/fusegraph-side-by-side
 #
 # OLD_FUSEGRAPH=path/to/an/older/release/fusegraph adds the main job cold
-# (graphs/fusion.toml, no cache) run by that build and this one, alternating.
+# (no cache) run by that build and this one, alternating; the older build
+# runs OLD_GRAPH (default graphs/fusion.toml: give the older checkout's own,
+# whose ops it knows).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 rounds=${1:-3}
@@ -56,11 +58,14 @@ for round in $(seq "$rounds"); do
     "$py" "$peers" --repeat 5 $args </dev/null
   done
   if [ -n "${OLD_FUSEGRAPH:-}" ]; then
-    for build in "$OLD_FUSEGRAPH" "$fg"; do
+    for which in old this; do
+      if [ "$which" = old ]; then build=$OLD_FUSEGRAPH graph=${OLD_GRAPH:-graphs/fusion.toml}
+      else build=$fg graph=graphs/fusion.toml; fi
       rm -rf "$work/main"
       start=$(date +%s%N)
-      "$build" run graphs/fusion.toml --no-cache --out "$work/main" >/dev/null 2>&1 || true
-      echo "main job cold, $build: $((($(date +%s%N) - start) / 1000000)) ms"
+      status=0
+      "$build" run "$graph" --no-cache --out "$work/main" >/dev/null 2>&1 || status=$?
+      echo "main job cold, $which build ($build $graph): $((($(date +%s%N) - start) / 1000000)) ms, exit $status"
     done
   fi
 done

@@ -7,9 +7,7 @@ use crate::bench_sgm::SgmCase;
 use fusegraph_engine::typed::declared_defaults;
 use fusegraph_nodes::eval::disparity_errors;
 use fusegraph_nodes::stereo::ops::{FillDisparity, RefineSlanted};
-use fusegraph_nodes::stereo::{
-    DisparityRange, GreyImage, SgmConfig, fill_disparity, refine_slanted, sgm_disparity,
-};
+use fusegraph_nodes::stereo::{SgmConfig, fill_disparity, refine_slanted, sgm_disparity};
 use std::time::Instant;
 
 /// Parameters of the refinement that differ from its declared defaults.
@@ -43,13 +41,7 @@ pub fn run(cases: &[SgmCase], repeat: usize, overrides: Overrides) -> anyhow::Re
         rayon::current_num_threads()
     );
     for case in cases {
-        let (l, r) = (
-            GreyImage::from_image(&case.left),
-            GreyImage::from_image(&case.right),
-        );
-        let max = case.min_disparity + case.disparities as i32 - 1;
-        let range =
-            DisparityRange::new(case.min_disparity, max, l.width).map_err(anyhow::Error::msg)?;
+        let (l, r, range) = case.grey_pair()?;
         let mut smoothed =
             sgm_disparity(&l, &r, range, &SgmConfig::default()).map_err(anyhow::Error::msg)?;
         fill_disparity(&mut smoothed, &l, &fill.params());

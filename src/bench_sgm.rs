@@ -56,6 +56,18 @@ impl SgmCase {
             disparities,
         })
     }
+
+    /// The pair as the matchers take it, and its disparity range.
+    pub fn grey_pair(&self) -> anyhow::Result<(GreyImage, GreyImage, DisparityRange)> {
+        let (l, r) = (
+            GreyImage::from_image(&self.left),
+            GreyImage::from_image(&self.right),
+        );
+        let max = self.min_disparity + self.disparities as i32 - 1;
+        let range =
+            DisparityRange::new(self.min_disparity, max, l.width).map_err(anyhow::Error::msg)?;
+        Ok((l, r, range))
+    }
 }
 
 /// The phantom view 0 pair rectified with the true rig (128 disparities), and
@@ -155,13 +167,7 @@ pub fn run(
         folder.display()
     );
     for (i, case) in cases.iter().enumerate() {
-        let (l, r) = (
-            GreyImage::from_image(&case.left),
-            GreyImage::from_image(&case.right),
-        );
-        let max = case.min_disparity + case.disparities as i32 - 1;
-        let range =
-            DisparityRange::new(case.min_disparity, max, l.width).map_err(anyhow::Error::msg)?;
+        let (l, r, range) = case.grey_pair()?;
         let mut best = f64::MAX;
         let mut disparity = Vec::new();
         for _ in 0..repeat.max(1) {

@@ -11,6 +11,23 @@ pub fn fast_floor(x: f64) -> i64 {
     if (i as f64) > x { i - 1 } else { i }
 }
 
+/// The lattice cell holding `p` (mm) at lattice spacing `1 / frequency` mm:
+/// its lowest corner, and `p`'s position in it along each axis eased by
+/// smoothstep (0..1).
+fn cell(p: &Point3<f64>, frequency: f64) -> ([i64; 3], [f64; 3]) {
+    let q = p.coords * frequency;
+    let (ix, iy, iz) = (fast_floor(q.x), fast_floor(q.y), fast_floor(q.z));
+    let smooth = |t: f64| t * t * (3.0 - 2.0 * t);
+    (
+        [ix, iy, iz],
+        [
+            smooth(q.x - ix as f64),
+            smooth(q.y - iy as f64),
+            smooth(q.z - iz as f64),
+        ],
+    )
+}
+
 /// Smooth pseudo-random noise in [0, 1] over 3D space, with features about
 /// `1 / frequency` mm across.
 #[derive(Debug, Clone, Copy)]
@@ -45,14 +62,7 @@ impl ValueNoise {
 
     /// Noise at `p` (mm) with lattice spacing `1 / frequency` mm.
     pub fn at(&self, p: &Point3<f64>, frequency: f64) -> f64 {
-        let q = p.coords * frequency;
-        let (ix, iy, iz) = (fast_floor(q.x), fast_floor(q.y), fast_floor(q.z));
-        let smooth = |t: f64| t * t * (3.0 - 2.0 * t);
-        let (tx, ty, tz) = (
-            smooth(q.x - ix as f64),
-            smooth(q.y - iy as f64),
-            smooth(q.z - iz as f64),
-        );
+        let ([ix, iy, iz], [tx, ty, tz]) = cell(p, frequency);
         // The corners share their hashes' prefixes: 2 states after x, 4
         // after y, 8 after z (14 mixes instead of 24).
         let start = self.seed ^ 0x9E37_79B9_7F4A_7C15;
@@ -97,14 +107,7 @@ mod tests {
 
     /// The noise as first written: each corner hashed on its own.
     fn noise_by_corners(n: &ValueNoise, p: &Point3<f64>, frequency: f64) -> f64 {
-        let q = p.coords * frequency;
-        let (ix, iy, iz) = (fast_floor(q.x), fast_floor(q.y), fast_floor(q.z));
-        let smooth = |t: f64| t * t * (3.0 - 2.0 * t);
-        let (tx, ty, tz) = (
-            smooth(q.x - ix as f64),
-            smooth(q.y - iy as f64),
-            smooth(q.z - iz as f64),
-        );
+        let ([ix, iy, iz], [tx, ty, tz]) = cell(p, frequency);
         let mut acc = 0.0;
         for corner in 0..8i64 {
             let (dx, dy, dz) = (corner & 1, (corner >> 1) & 1, corner >> 2);

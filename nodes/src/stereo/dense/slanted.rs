@@ -567,6 +567,89 @@ mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
 
+    /// The window sums as first written: one scalar loop, sample by
+    /// sample.
+    #[allow(clippy::too_many_arguments)]
+    fn window_sums_by_sample(
+        left: &[f32],
+        right: &[f32],
+        w: usize,
+        x: isize,
+        y: isize,
+        half: isize,
+        d: f32,
+        [gx, gy, gxx, gxy, gyy]: [f32; 5],
+    ) -> Option<[f64; 5]> {
+        let mut sums = [0.0f64; 5];
+        for j in -half..=half {
+            let row = (y + j) as usize * w;
+            let jf = j as f32;
+            let (base, linear) = (d + gy * jf + gyy * jf * jf, gx + gxy * jf);
+            for ii in -half..=half {
+                let i = ii as f32;
+                let xr = (x + ii) as f32 - (base + linear * i + gxx * i * i);
+                if xr < 1.0 || xr >= (w - 2) as f32 {
+                    return None;
+                }
+                let x0 = xr.floor() as usize;
+                let (r0, r1) = (right[row + x0], right[row + x0 + 1]);
+                let r = (r0 + (r1 - r0) * (xr - x0 as f32)) as f64;
+                let g = (r1 - r0) as f64;
+                let lr = left[row + (x + ii) as usize] as f64 - r;
+                for (s, v) in sums.iter_mut().zip([lr, lr * lr, g, lr * g, g * g]) {
+                    *s += v;
+                }
+            }
+        }
+        Some(sums)
+    }
+
+    #[test]
+    fn the_window_kernel_sums_what_the_plain_loop_sums_on_every_instruction_set() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let (w, h) = (90, 40);
+        let image = |rng: &mut rand_chacha::ChaCha8Rng| -> Vec<f32> {
+            (0..w * h)
+                .map(|_| rng.random_range(0..256) as f32)
+                .collect()
+        };
+        let (left, right) = (image(&mut rng), image(&mut rng));
+        let (mut compared, mut outside) = (0, 0);
+        for _ in 0..400 {
+            let half = rng.random_range(1..=15i64) as isize;
+            let (x, y) = (
+                rng.random_range(half as i64..w as i64 - half as i64) as isize,
+                rng.random_range(half as i64..h as i64 - half as i64) as isize,
+            );
+            let d = rng.random_range(-3.0..20.0f32);
+            let shape = [
+                rng.random_range(-0.5..0.5f32),
+                rng.random_range(-0.5..0.5f32),
+                rng.random_range(-0.02..0.02f32),
+                rng.random_range(-0.02..0.02f32),
+                rng.random_range(-0.02..0.02f32),
+            ];
+            let plain = window_sums_by_sample(&left, &right, w, x, y, half, d, shape);
+            for isa in [Isa::Scalar, Isa::detect()] {
+                let kernel = isa.slanted_window_sums(&left, &right, w, x, y, half, d, shape);
+                match (plain, kernel) {
+                    (Some(a), Some(b)) => {
+                        for (a, b) in a.iter().zip(b) {
+                            assert!((a - b).abs() <= 1e-9 * a.abs().max(1.0), "{a} vs {b}");
+                        }
+                        compared += 1;
+                    }
+                    (None, None) => outside += 1,
+                    (a, b) => panic!("plain loop {a:?}, kernel on {isa:?} {b:?}"),
+                }
+            }
+        }
+        assert!(
+            compared > 200 && outside > 20,
+            "{compared} compared, {outside} outside"
+        );
+    }
+
     /// A weakly textured surface whose true disparity depends on the column
     /// only, `truth(x)` px (at most `max_d`); the right image is the left one
     /// warped by it, each right pixel seeing the nearest surface point on

@@ -852,9 +852,10 @@ fn main_job_locates_the_lesions_from_images_alone() {
 
 /// The main job gives bit-identical results on one worker thread (every
 /// rayon loop in every op serial) and on one per core: fusion.toml on the
-/// small phantom (every op the full one runs), cold twice with caches of
-/// its own; each node's outputs (files by content hash), metrics (but
-/// timings) and notes compared.
+/// small phantom with three of its six views (every op the full one runs;
+/// the other views only repeat them, and cost the suite a minute on 2
+/// cores), cold twice with caches of its own; each node's outputs (files
+/// by content hash), metrics (but timings) and notes compared.
 #[test]
 fn main_job_gives_the_same_results_on_one_thread_and_on_several() {
     use fusegraph_engine::Value;
@@ -862,7 +863,28 @@ fn main_job_gives_the_same_results_on_one_thread_and_on_several() {
     use fusegraph_engine::key::NodeKey;
     let t = tempfile::tempdir().unwrap();
     let dir = t.path();
-    std::fs::copy(graph_file("fusion.toml"), dir.join("fusion.toml")).unwrap();
+    let full = std::fs::read_to_string(graph_file("fusion.toml")).unwrap();
+    let three_views: String = full
+        .lines()
+        .filter(|l| {
+            !["cloud", "pose", "markers"]
+                .iter()
+                .any(|p| (3..6).any(|v| l.starts_with(&format!("in.{p}{v} = "))))
+        })
+        .map(|l| {
+            if l == "values = [0, 1, 2, 3, 4, 5]" {
+                "values = [0, 1, 2]"
+            } else {
+                l
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    assert!(
+        three_views.contains("values = [0, 1, 2]\n") && !three_views.contains("in.cloud5"),
+        "fusion.toml's views are no longer written as this test expects"
+    );
+    std::fs::write(dir.join("fusion.toml"), three_views).unwrap();
     let run = |jobs: &str, name: &str| {
         let cache = dir.join(format!("{name}-cache"));
         let out = dir.join(format!("{name}-out"));
@@ -872,6 +894,8 @@ fn main_job_gives_the_same_results_on_one_thread_and_on_several() {
                 "fusion.toml",
                 "--set",
                 "phantom.size=small",
+                "--set",
+                "phantom.views=3",
                 "--jobs",
                 jobs,
                 "--cache",
@@ -926,7 +950,7 @@ fn main_job_gives_the_same_results_on_one_thread_and_on_several() {
         assert_eq!(a.notes, b.notes, "{id}: notes");
         compared += 1;
     }
-    assert!(compared > 100, "{compared} nodes compared");
+    assert!(compared > 80, "{compared} nodes compared");
 }
 
 #[test]

@@ -167,12 +167,14 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
         square_mm: 25.0,
         margin_mm: 20.0,
     };
-    let (calib_ss, view_ss) = match config.size {
-        PhantomSize::Small => (2, 1),
-        PhantomSize::Full => (4, 3),
+    // Samples per axis: calibration edges, view edges, view texture.
+    let (calib_ss, view_ss, view_texture_ss) = match config.size {
+        PhantomSize::Small => (2, 1, 1),
+        PhantomSize::Full => (4, 3, 2),
     };
-    let render_params = |supersample: usize, seed: u64, camera| RenderParams {
+    let render_params = |(supersample, smooth_supersample), seed: u64, camera| RenderParams {
         supersample,
+        smooth_supersample,
         blur_sigma_px: 0.5,
         lens: c.lens(camera),
         sensor: c.sensor(seed),
@@ -204,7 +206,7 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
                     .enumerate()
             {
                 let seed = config.seed.wrapping_mul(1000) + 2 * index as u64 + side as u64;
-                let params = render_params(calib_ss, seed, camera);
+                let params = render_params((calib_ss, calib_ss), seed, camera);
                 let rgb = renderers[side].render(camera_pose, &scene, &params);
                 write(&dir.join(&names[side]), &rgb, camera)?;
             }
@@ -247,8 +249,8 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
                     .enumerate()
             {
                 let seed = config.seed.wrapping_mul(7000) + 2 * index as u64 + side as u64;
-                let rgb =
-                    renderers[side].render(pose, &scene, &render_params(view_ss, seed, camera));
+                let params = render_params((view_ss, view_texture_ss), seed, camera);
+                let rgb = renderers[side].render(pose, &scene, &params);
                 write(&dir.join(&names[side]), &rgb, camera)?;
             }
             Ok(ViewTruth {

@@ -371,6 +371,7 @@ mod tests {
         sensor.vignetting = 0.0;
         let params = RenderParams {
             supersample: 5,
+            smooth_supersample: 5,
             blur_sigma_px: 0.0,
             lens: None,
             sensor,

@@ -324,6 +324,7 @@ mod tests {
             sensor.vignetting = 0.0;
             let params = RenderParams {
                 supersample: 1,
+                smooth_supersample: 1,
                 blur_sigma_px: 0.0,
                 lens: None,
                 sensor,

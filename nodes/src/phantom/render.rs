@@ -288,6 +288,92 @@ mod tests {
         }
     }
 
+    /// The plane z = 100: left of x = 0 one smooth surface (key 7) striped
+    /// every 0.7 mm (finer than the test camera's 1 mm pixels there, so
+    /// neighbouring pixel centres differ), right of it black; counts the rays cast near the
+    /// surface and along whole rays.
+    #[derive(Default)]
+    struct StripedHalfPlane {
+        near: std::sync::atomic::AtomicUsize,
+        whole: std::sync::atomic::AtomicUsize,
+    }
+
+    impl Scene for StripedHalfPlane {
+        fn radiance_at(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> ([f32; 3], f64) {
+            self.whole
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            let t = (100.0 - origin.z) / dir.z;
+            let x = origin.x + t * dir.x;
+            let v = if x >= 0.0 {
+                0.0
+            } else if (x / 0.7).floor() as i64 % 2 == 0 {
+                1.0
+            } else {
+                0.5
+            };
+            ([v; 3], t)
+        }
+
+        fn seen(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> Seen {
+            let (rgb, distance_mm) = self.radiance_at(origin, dir);
+            let on_surface = origin.x + distance_mm * dir.x < 0.0;
+            Seen {
+                rgb,
+                distance_mm,
+                smooth_surface: on_surface.then_some(7),
+            }
+        }
+
+        fn radiance_near(
+            &self,
+            origin: &Point3<f64>,
+            dir: &Vector3<f64>,
+            surface: u32,
+            _span_mm: (f64, f64),
+        ) -> [f32; 3] {
+            assert_eq!(surface, 7);
+            self.near.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            self.radiance_at(origin, dir).0
+        }
+    }
+
+    #[test]
+    fn texture_alone_takes_its_own_sample_count_and_edges_the_full_one() {
+        let camera = camera();
+        let mut sensor = SensorParams::ideal(0.0, 1);
+        sensor.vignetting = 0.0;
+        let count = |smooth_supersample: usize| {
+            let scene = StripedHalfPlane::default();
+            let p = RenderParams {
+                supersample: 4,
+                smooth_supersample,
+                blur_sigma_px: 0.0,
+                lens: None,
+                sensor: sensor.clone(),
+            };
+            let rgb = Renderer::new(&camera).render(&Isometry3::identity(), &scene, &p);
+            let load =
+                |a: &std::sync::atomic::AtomicUsize| a.load(std::sync::atomic::Ordering::Relaxed);
+            (load(&scene.near), load(&scene.whole), rgb)
+        };
+        let (near_full, whole_full, full) = count(4);
+        let (near_two, whole_two, two) = count(2);
+        let pixels = camera.width * camera.height;
+        // Striped pixels inside the surface: 16 rays each at 4 x 4, 4 at 2 x 2.
+        assert!(near_full > 0 && near_full % 16 == 0, "{near_full}");
+        assert_eq!(near_two * 4, near_full);
+        // The edge's pixels (neighbours off the surface) keep 4 x 4 whole rays.
+        assert_eq!(whole_full - near_full, whole_two - near_two);
+        assert!((whole_two - near_two - pixels) % 16 == 0 && whole_two - near_two > pixels);
+        // Fewer samples of the stripes, the same edge (x = 0 falls in column
+        // 31.7: columns 31 and 32 see both sides).
+        assert_ne!(full, two);
+        let column = |img: &[u8], x: usize| img[(x + 24 * camera.width) * 3];
+        for x in 31..34 {
+            assert_eq!(column(&full, x), column(&two, x), "edge column {x}");
+        }
+    }
+
     #[test]
     fn anti_aliasing_gives_fractional_edge_coverage() {
         let mut sensor = SensorParams::ideal(0.0, 1);

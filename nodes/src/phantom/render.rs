@@ -360,11 +360,12 @@ mod tests {
         let (near_two, whole_two, two) = count(2);
         let pixels = camera.width * camera.height;
         // Striped pixels inside the surface: 16 rays each at 4 x 4, 4 at 2 x 2.
-        assert!(near_full > 0 && near_full % 16 == 0, "{near_full}");
+        assert!(near_full > 0 && near_full.is_multiple_of(16), "{near_full}");
         assert_eq!(near_two * 4, near_full);
         // The edge's pixels (neighbours off the surface) keep 4 x 4 whole rays.
         assert_eq!(whole_full - near_full, whole_two - near_two);
-        assert!((whole_two - near_two - pixels) % 16 == 0 && whole_two - near_two > pixels);
+        let edge_rays = whole_two - near_two - pixels;
+        assert!(edge_rays > 0 && edge_rays.is_multiple_of(16), "{edge_rays}");
         // Fewer samples of the stripes, the same edge (x = 0 falls in column
         // 31.7: columns 31 and 32 see both sides).
         assert_ne!(full, two);

@@ -298,20 +298,21 @@ impl ShapeFit {
 
     /// The normal equations' matrix over the samples `used`.
     fn normal_matrix(&self, used: &[bool]) -> SMatrix<f64, 6, 6> {
+        let outer = |keep: bool| {
+            self.terms
+                .iter()
+                .zip(used)
+                .filter(move |(_, u)| **u == keep)
+                .map(|(t, _)| t * t.transpose())
+        };
         let left_out = used.iter().filter(|u| !**u).count();
-        let mut a = SMatrix::<f64, 6, 6>::zeros();
-        if left_out * 2 < used.len() {
-            // Most samples used (the common case: a few off the shape):
-            // every sample's sum less the few left out.
-            a = self.normal_all;
-            for (t, _) in self.terms.iter().zip(used).filter(|(_, u)| !**u) {
-                a -= t * t.transpose();
-            }
+        // Most samples used (the common case: a few off the shape): every
+        // sample's sum less the few left out.
+        let mut a = if left_out * 2 < used.len() {
+            outer(false).fold(self.normal_all, |a, m| a - m)
         } else {
-            for (t, _) in self.terms.iter().zip(used).filter(|(_, u)| **u) {
-                a += t * t.transpose();
-            }
-        }
+            outer(true).fold(SMatrix::zeros(), |a, m| a + m)
+        };
         if !self.quadratic {
             // The bend's terms are zero: pin them.
             for k in 3..6 {

@@ -21,6 +21,7 @@ mod rig;
 mod scenes;
 mod sensor;
 mod shape;
+mod shape_near;
 mod texture;
 mod true_disparity;
 mod truth;

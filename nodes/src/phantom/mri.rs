@@ -100,6 +100,10 @@ fn phantom_bounds(shape: &PhantomShape) -> (Point3<f64>, Point3<f64>) {
     (lo, hi)
 }
 
+/// How far a voxel position computed through the grid's affine map may stray
+/// from the straight line of its row, mm (rounding, with room to spare).
+const ROUNDING_MM: f64 = 1e-6;
+
 /// The noisy MR signal of every voxel of `grid` (f32, in [`Grid::index`] order).
 pub fn synthesize(
     shape: &PhantomShape,
@@ -109,24 +113,33 @@ pub fn synthesize(
 ) -> Vec<f32> {
     let [nx, ny, nz] = grid.dims;
     let mri_to_phantom = phantom_to_mri.inverse();
-    let material_at_voxel = |i: f64, j: f64, k: f64| {
-        let patient = Point3::from(grid.to_patient([i, j, k]));
-        shape.material_at(&(mri_to_phantom * patient))
+    let at_voxel =
+        |i: f64, j: f64, k: f64| mri_to_phantom * Point3::from(grid.to_patient([i, j, k]));
+    // The shape near the line of voxel positions (j, k) from i = `from` to
+    // `to`, give or take `margin_mm`: each row meets few markers and lesions.
+    let near_row = |(from, to): (f64, f64), j: f64, k: f64, margin_mm: f64| {
+        shape.near_segment(&at_voxel(from, j, k), &at_voxel(to, j, k), margin_mm)
     };
     // Materials at voxel corners, to find the voxels that straddle a boundary.
     let (cx, cy) = (nx + 1, ny + 1);
     let corners: Vec<Material> = (0..nz + 1)
         .into_par_iter()
         .flat_map_iter(|k| {
-            (0..cy)
-                .flat_map(move |j| (0..cx).map(move |i| (i, j, k)))
-                .map(|(i, j, k)| material_at_voxel(i as f64 - 0.5, j as f64 - 0.5, k as f64 - 0.5))
-                .collect::<Vec<_>>()
+            let (k, corners_k) = (k as f64 - 0.5, &at_voxel);
+            (0..cy).flat_map(move |j| {
+                let j = j as f64 - 0.5;
+                let near = near_row((-0.5, nx as f64 - 0.5), j, k, ROUNDING_MM);
+                (0..cx)
+                    .map(|i| near.material_at(&corners_k(i as f64 - 0.5, j, k)))
+                    .collect::<Vec<_>>()
+            })
         })
         .collect();
     let corner = |i: usize, j: usize, k: usize| corners[i + cx * (j + cy * k)];
     let n = p.supersample.max(1);
     let sub: Vec<f64> = (0..n).map(|s| (s as f64 + 0.5) / n as f64 - 0.5).collect();
+    // Every sample of a voxel lies within half its diagonal of its centre.
+    let half_diagonal_mm = 0.5 * Vector3::from(grid.spacing_mm()).norm() + ROUNDING_MM;
     let bias = BiasField::new(shape, p.seed, p.bias_amplitude);
     let noise = Normal::new(0.0, p.noise_sigma.max(0.0)).expect("finite sigma");
     let mut signal = vec![0.0f32; nx * ny * nz];
@@ -137,6 +150,9 @@ pub fn synthesize(
             let mut rng =
                 ChaCha8Rng::seed_from_u64(p.seed ^ (k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
             for j in 0..ny {
+                let near = near_row((0.0, (nx - 1) as f64), j as f64, k as f64, half_diagonal_mm);
+                let material_at_voxel =
+                    |i: f64, j: f64, k: f64| near.material_at(&at_voxel(i, j, k));
                 for i in 0..nx {
                     let c0 = corner(i, j, k);
                     let pure = (0..8)
@@ -162,8 +178,7 @@ pub fn synthesize(
                         }
                         sum / (n * n * n) as f32
                     };
-                    let centre = mri_to_phantom
-                        * Point3::from(grid.to_patient([i as f64, j as f64, k as f64]));
+                    let centre = at_voxel(i as f64, j as f64, k as f64);
                     let s = clean as f64 * bias.at(&centre);
                     let (re, im) = (s + noise.sample(&mut rng), noise.sample(&mut rng));
                     slice[i + nx * j] = (re * re + im * im).sqrt() as f32;

@@ -123,19 +123,30 @@ impl RayMap {
     }
 }
 
-/// A camera ready to render: its model and its precomputed ray map, shared by
-/// every image it takes.
+/// A camera ready to render: its model, its precomputed ray map and the
+/// direction through every pixel centre, shared by every image it takes.
 pub struct Renderer<'a> {
     camera: &'a CameraModel,
     rays: RayMap,
+    /// `rays.direction(x, y)` at every pixel centre, row-major (camera frame):
+    /// the same bits, computed once per camera instead of once per image.
+    centres: Vec<Vector3<f64>>,
 }
 
 impl<'a> Renderer<'a> {
-    /// Prepares `camera` (one distortion inversion per 16 pixels).
+    /// Prepares `camera` (one distortion inversion per 16 pixels, one
+    /// interpolation per pixel).
     pub fn new(camera: &'a CameraModel) -> Self {
+        let rays = RayMap::new(camera);
+        let w = camera.width;
+        let centres = (0..w * camera.height)
+            .into_par_iter()
+            .map(|i| rays.direction((i % w) as f64, (i / w) as f64))
+            .collect();
         Renderer {
             camera,
-            rays: RayMap::new(camera),
+            rays,
+            centres,
         }
     }
 
@@ -147,13 +158,16 @@ impl<'a> Renderer<'a> {
         scene: &dyn Scene,
         p: &RenderParams,
     ) -> Vec<u8> {
-        render_with(self.camera, &self.rays, camera_to_world, scene, p)
+        render_with(self, camera_to_world, scene, p)
     }
 }
 
 fn render_with(
-    camera: &CameraModel,
-    rays: &RayMap,
+    Renderer {
+        camera,
+        rays,
+        centres,
+    }: &Renderer,
     camera_to_world: &Isometry3<f64>,
     scene: &dyn Scene,
     p: &RenderParams,
@@ -174,7 +188,7 @@ fn render_with(
         .enumerate()
         .for_each(|(y, (row, seen_row))| {
             for (x, (px, s)) in row.iter_mut().zip(seen_row.iter_mut()).enumerate() {
-                let dir = rotation * rays.direction(x as f64, y as f64);
+                let dir = rotation * centres[x + y * w];
                 if n > 1 || p.lens.is_some() {
                     let look = scene.seen(&origin, &dir);
                     *px = look.rgb;
@@ -248,7 +262,7 @@ fn render_with(
         let circles: Vec<f32> = (0..w * h)
             .into_par_iter()
             .map(|i| {
-                let ray = rays.direction((i % w) as f64, (i / w) as f64);
+                let ray = centres[i];
                 lens.blur_circle_px((seen[i].0 * ray.z) as f32 as f64) as f32
             })
             .collect();

@@ -87,10 +87,11 @@ impl Marker {
         })
     }
 
-    /// Radius of a sphere around the skin point holding the whole marker.
-    fn bounding_radius(&self) -> f64 {
+    /// Squared radius of a sphere around the skin point holding the whole
+    /// marker, mm^2 (no square root: it is tested per MRI sample).
+    pub(super) fn bounding_radius_squared(&self) -> f64 {
         let reach = self.height_mm.max(self.below_skin_mm);
-        (reach * reach + self.radius_mm * self.radius_mm).sqrt()
+        reach * reach + self.radius_mm * self.radius_mm
     }
 }
 
@@ -340,7 +341,7 @@ impl PhantomShape {
     /// skin), lesions override tissue.
     pub fn material_at(&self, p: &Point3<f64>) -> Material {
         for m in &self.markers {
-            if (p - Point3::from(m.skin_point_mm)).norm_squared() <= m.bounding_radius().powi(2)
+            if (p - Point3::from(m.skin_point_mm)).norm_squared() <= m.bounding_radius_squared()
                 && let Some(material) = m.material_at(p)
             {
                 return material;
@@ -557,7 +558,7 @@ fn intersect_marker(
     let w = origin - s;
     // Cull by the bounding sphere.
     let b_half = w.dot(dir);
-    let c_sphere = w.norm_squared() - m.bounding_radius().powi(2);
+    let c_sphere = w.norm_squared() - m.bounding_radius_squared();
     if c_sphere > 0.0 && (b_half > 0.0 || b_half * b_half < c_sphere) {
         return None;
     }

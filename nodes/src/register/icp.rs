@@ -14,10 +14,12 @@
 //! along the surface, where point-to-plane converges; prefer point-to-plane for
 //! surfaces.
 
-use super::procrustes::umeyama;
+use super::procrustes::fit_from_moments;
 use crate::cloud::{Nearest, voxel_downsample};
 use fusegraph_plugin_api::derive::Choice;
-use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
+use nalgebra::{
+    Isometry3, Matrix3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6,
+};
 use rayon::prelude::*;
 
 /// Error metric (also the `method` parameter of `register.icp`: its
@@ -108,6 +110,94 @@ impl IcpParams {
 /// Pairs of (source index, target index, distance mm).
 pub(crate) type Pairs = Vec<(usize, usize, f64)>;
 
+/// Each source point's nearest target point from its last two-point search,
+/// reused while it is provably still the nearest. Searched from `at` with
+/// the nearest at distance d1 and the second nearest at d2, a point moved
+/// less than (d2 - d1) / 2 from `at` has the same nearest: that one is at
+/// most d1 + moved away, every other at least d2 - moved. ICP's later steps
+/// move points by microns, so most searches are skipped, and the pairs are
+/// those a full search finds (a tie aside).
+///
+/// A two-point search costs about twice a one-point search, so while
+/// points keep moving (fewer than half the searches skipped) the others
+/// search for the nearest alone, and every fourth iteration searches two
+/// again to catch the moment they settle.
+#[derive(Debug, Clone)]
+pub(crate) struct NearestCache {
+    entries: Vec<Option<CachedNearest>>,
+    /// Whether the last iteration skipped at least half its searches.
+    paying: bool,
+    /// Iterations since the last one that searched two points.
+    since_two: usize,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct CachedNearest {
+    /// Where the point was when searched, mm.
+    at: Point3<f64>,
+    /// Its nearest target point there.
+    nearest: usize,
+    /// Half the gap between the nearest and second-nearest distances, mm.
+    slack_mm: f64,
+}
+
+/// Iterations that search for the nearest alone between two-point searches.
+const ONE_POINT_RUN: usize = 3;
+
+impl NearestCache {
+    /// An empty cache for `n` source points.
+    pub(crate) fn new(n: usize) -> Self {
+        NearestCache {
+            entries: vec![None; n],
+            paying: true,
+            since_two: 0,
+        }
+    }
+
+    /// Whether this iteration's searches find two points (and refresh the
+    /// cache) or the nearest alone.
+    fn searches_two(&self) -> bool {
+        self.paying || self.since_two >= ONE_POINT_RUN
+    }
+
+    /// Records an iteration that skipped `skipped` of `n` searches.
+    fn record(&mut self, searched_two: bool, skipped: usize, n: usize) {
+        self.paying = 2 * skipped >= n;
+        self.since_two = if searched_two { 0 } else { self.since_two + 1 };
+    }
+}
+
+impl CachedNearest {
+    /// The nearest target point to a source point now at `m`, the squared
+    /// distance to it (mm²), and whether `cached` (its last search) gave
+    /// it; otherwise a new search, which `cached` keeps when it found two.
+    fn nearest(
+        cached: &mut Option<Self>,
+        tree: &Nearest,
+        m: &Point3<f64>,
+        search_two: bool,
+    ) -> ((usize, f64), bool) {
+        if let Some(c) = cached
+            && (m - c.at).norm() < c.slack_mm
+        {
+            return (
+                (c.nearest, (tree.point(c.nearest) - m).norm_squared()),
+                true,
+            );
+        }
+        if !search_two {
+            return (tree.nearest(m), false);
+        }
+        let ((j, d1), d2) = tree.nearest_two(m);
+        *cached = Some(CachedNearest {
+            at: *m,
+            nearest: j,
+            slack_mm: 0.5 * (d2.sqrt() - d1.sqrt()),
+        });
+        ((j, d1), false)
+    }
+}
+
 /// Each moved source point's nearest target point within `max_d` (mm) as
 /// (source index, target index, distance mm), the closest `trim_ratio` of
 /// them kept, and the fraction of source points that had one (fitness).
@@ -116,15 +206,36 @@ pub(crate) fn correspondences(
     tree: &Nearest,
     max_d: f64,
     trim_ratio: f64,
+    cache: Option<&mut NearestCache>,
 ) -> Result<(Pairs, f64), String> {
-    let mut pairs: Vec<(usize, usize, f64)> = moved
-        .par_iter()
-        .enumerate()
-        .filter_map(|(i, m)| {
-            let (j, d2) = tree.nearest(m);
-            (d2 <= max_d * max_d).then(|| (i, j, d2.sqrt()))
-        })
-        .collect();
+    let within =
+        |(i, (j, d2)): (usize, (usize, f64))| (d2 <= max_d * max_d).then(|| (i, j, d2.sqrt()));
+    let mut pairs: Vec<(usize, usize, f64)> = match cache {
+        Some(cache) => {
+            assert_eq!(
+                cache.entries.len(),
+                moved.len(),
+                "one entry per source point"
+            );
+            let two = cache.searches_two();
+            let found: Vec<((usize, f64), bool)> = moved
+                .par_iter()
+                .zip(cache.entries.par_iter_mut())
+                .map(|(m, c)| CachedNearest::nearest(c, tree, m, two))
+                .collect();
+            cache.record(two, found.iter().filter(|f| f.1).count(), found.len());
+            found
+                .into_iter()
+                .enumerate()
+                .filter_map(|(i, (nearest, _))| within((i, nearest)))
+                .collect()
+        }
+        None => moved
+            .par_iter()
+            .enumerate()
+            .filter_map(|(i, m)| within((i, tree.nearest(m))))
+            .collect(),
+    };
     let fitness = pairs.len() as f64 / moved.len().max(1) as f64;
     if pairs.len() < 6 {
         return Err(format!(
@@ -231,6 +342,67 @@ pub fn normals_near(
         .collect()
 }
 
+/// Weighted sums over point pairs (source point, target point, both taken
+/// relative to one origin near them, mm) that the rigid least-squares fit
+/// needs: accumulated pair by pair, merged chunk by chunk.
+#[derive(Debug, Clone, Copy)]
+struct PairMoments {
+    total: f64,
+    source: Vector3<f64>,
+    target: Vector3<f64>,
+    /// Sum of w * target * source^T.
+    cross: Matrix3<f64>,
+}
+
+impl Default for PairMoments {
+    fn default() -> Self {
+        PairMoments {
+            total: 0.0,
+            source: Vector3::zeros(),
+            target: Vector3::zeros(),
+            cross: Matrix3::zeros(),
+        }
+    }
+}
+
+impl PairMoments {
+    fn add(self, source: &Vector3<f64>, target: &Vector3<f64>, w: f64) -> Self {
+        PairMoments {
+            total: self.total + w,
+            source: self.source + source * w,
+            target: self.target + target * w,
+            cross: self.cross + target * source.transpose() * w,
+        }
+    }
+
+    fn merge(self, other: &Self) -> Self {
+        PairMoments {
+            total: self.total + other.total,
+            source: self.source + other.source,
+            target: self.target + other.target,
+            cross: self.cross + other.cross,
+        }
+    }
+
+    /// The rotation and translation taking the sources onto the targets
+    /// (`origin` added back), `None` for no weight or collinear points.
+    fn fit(&self, origin: &Point3<f64>) -> Option<Isometry3<f64>> {
+        if self.total <= 0.0 {
+            return None;
+        }
+        let (ms, md) = (self.source / self.total, self.target / self.total);
+        let cov = self.cross / self.total - md * ms.transpose();
+        fit_from_moments(
+            &(ms + origin.coords),
+            &(md + origin.coords),
+            &cov,
+            1.0,
+            false,
+        )
+        .map(|s| s.isometry())
+    }
+}
+
 /// Pairs per partial sum of the point-to-plane normal equations.
 const REDUCTION_CHUNK: usize = 4096;
 
@@ -307,9 +479,11 @@ pub fn icp_anchored(
     for voxel in p.scales() {
         let (src, max_d) = p.scale(source, voxel);
         let mut previous: Option<(f64, f64)> = None;
+        let mut cache = NearestCache::new(src.len());
         for _ in 0..p.max_iterations {
             let moved: Vec<Point3<f64>> = src.par_iter().map(|s| transform * s).collect();
-            let (pairs, fitness) = correspondences(&moved, tree, max_d, p.trim_ratio)?;
+            let (pairs, fitness) =
+                correspondences(&moved, tree, max_d, p.trim_ratio, Some(&mut cache))?;
             let rmse = (pairs.iter().map(|q| q.2 * q.2).sum::<f64>() / pairs.len() as f64).sqrt();
             trace.push(IcpStep {
                 voxel_mm: voxel,
@@ -326,18 +500,32 @@ pub fn icp_anchored(
             previous = Some((rmse, fitness));
             let step = match p.method {
                 IcpMethod::PointToPoint => {
-                    let (mut a, mut b): (Vec<_>, Vec<_>) =
-                        pairs.iter().map(|&(i, j, _)| (moved[i], target[j])).unzip();
-                    let mut w: Vec<f64> = pairs.iter().map(|q| p.kernel.weight(q.2)).collect();
+                    // Sums over fixed chunks, as for point-to-plane below.
+                    let origin = moved[pairs[0].0];
+                    let partials: Vec<PairMoments> = pairs
+                        .par_chunks(REDUCTION_CHUNK)
+                        .map(|chunk| {
+                            chunk
+                                .iter()
+                                .fold(PairMoments::default(), |sums, &(i, j, d)| {
+                                    sums.add(
+                                        &(moved[i] - origin),
+                                        &(target[j] - origin),
+                                        p.kernel.weight(d),
+                                    )
+                                })
+                        })
+                        .collect();
+                    let mut sums = partials
+                        .iter()
+                        .fold(PairMoments::default(), |a, b| a.merge(b));
                     if let Some(anchors) = anchors {
-                        let each = anchors.each(w.iter().sum());
+                        let each = anchors.each(sums.total);
                         for (s, t) in anchors.source.iter().zip(&anchors.target) {
-                            a.push(transform * s);
-                            b.push(*t);
-                            w.push(each);
+                            sums = sums.add(&(transform * s - origin), &(t - origin), each);
                         }
                     }
-                    umeyama(&a, &b, Some(&w), false).map(|s| s.isometry())
+                    sums.fit(&origin)
                 }
                 IcpMethod::PointToPlane => {
                     let normals = target_normals.expect("checked above");
@@ -463,6 +651,38 @@ mod tests {
             r.iterations
         );
         assert!(r.rmse_mm < 0.2, "{}", r.rmse_mm);
+    }
+
+    /// The cache gives the pairs a full search gives, iteration after
+    /// iteration, as points move a lot (every search) and then little
+    /// (most searches skipped), in both search modes.
+    #[test]
+    fn cached_nearest_gives_the_full_searchs_pairs() {
+        let target = surface();
+        let tree = Nearest::new(&target).unwrap();
+        let source: Vec<Point3<f64>> = target.iter().step_by(3).copied().collect();
+        let mut cache = NearestCache::new(source.len());
+        let (mut skipped, mut one_point_iterations) = (0, 0);
+        for k in 0..14 {
+            // Steps shrinking from 2 mm to microns, like ICP's.
+            let step = 2.0 * 0.4f64.powi(k);
+            let pose = Isometry3::new(
+                Vector3::new(step, -0.5 * step, 0.3 * step),
+                Vector3::new(0.0, 0.002 * step, 0.001 * step),
+            );
+            let moved: Vec<Point3<f64>> = source.iter().map(|s| pose * s).collect();
+            let two = cache.searches_two();
+            one_point_iterations += usize::from(!two);
+            let before = cache.entries.iter().filter(|e| e.is_some()).count();
+            let (cached, _) = correspondences(&moved, &tree, 5.0, 1.0, Some(&mut cache)).unwrap();
+            let (full, _) = correspondences(&moved, &tree, 5.0, 1.0, None).unwrap();
+            assert_eq!(cached, full, "iteration {k}");
+            if cache.paying && before > 0 {
+                skipped += 1;
+            }
+        }
+        // Both modes ran, and late iterations skipped most searches.
+        assert!(one_point_iterations > 0 && skipped > 3, "{one_point_iterations}, {skipped}");
     }
 
     /// A spherical cap (radius 60 mm, above z = 10 mm) with its normals

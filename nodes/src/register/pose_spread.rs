@@ -129,7 +129,7 @@ pub fn pose_spread(
     let voxel = *p.scales().last().expect("at least one scale");
     let (src, max_d) = p.scale(source, voxel);
     let moved: Vec<Point3<f64>> = src.iter().map(|s| transform * s).collect();
-    let (pairs, _) = correspondences(&moved, tree, max_d, p.trim_ratio)?;
+    let (pairs, _) = correspondences(&moved, tree, max_d, p.trim_ratio, None)?;
     let mut terms: Vec<Term> = Vec::with_capacity(pairs.len());
     for &(i, j, _) in &pairs {
         let q = target[j];

@@ -107,6 +107,22 @@ pub fn umeyama(
     }
     cov /= total;
     var_src /= total;
+    fit_from_moments(&ms, &md, &cov, var_src, with_scale)
+}
+
+/// The least-squares similarity (rotation, translation, and with
+/// `with_scale` a scale) taking points with weighted mean `ms` onto points
+/// with weighted mean `md` (mm), from their weighted cross-covariance
+/// `cov` = mean of (dst - md)(src - ms)^T and the source's variance
+/// `var_src` (mean squared distance from `ms`, mm^2): Umeyama's solution.
+/// `None` when the points are collinear.
+pub fn fit_from_moments(
+    ms: &Vector3<f64>,
+    md: &Vector3<f64>,
+    cov: &Matrix3<f64>,
+    var_src: f64,
+    with_scale: bool,
+) -> Option<Similarity> {
     let svd = cov.svd(true, true);
     let (u, v_t) = (svd.u?, svd.v_t?);
     let mut s = Matrix3::identity();

@@ -682,7 +682,10 @@ mod tests {
             }
         }
         // Both modes ran, and late iterations skipped most searches.
-        assert!(one_point_iterations > 0 && skipped > 3, "{one_point_iterations}, {skipped}");
+        assert!(
+            one_point_iterations > 0 && skipped > 3,
+            "{one_point_iterations}, {skipped}"
+        );
     }
 
     /// A spherical cap (radius 60 mm, above z = 10 mm) with its normals

@@ -149,8 +149,8 @@ pub fn distance_to_outside_mm(mask: &[u8], dims: [usize; 3], spacing_mm: [f64; 3
         }
     };
     // Along i and j each slice's lines stay in the slice: slices in parallel.
-    for axis in 0..2 {
-        let step2 = spacing_mm[axis] * spacing_mm[axis];
+    for (axis, spacing) in spacing_mm.iter().enumerate().take(2) {
+        let step2 = spacing * spacing;
         d2.par_chunks_mut(nx * ny).for_each(|slice| match axis {
             0 => slice
                 .chunks_mut(nx)

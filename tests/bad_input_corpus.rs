@@ -5,7 +5,9 @@
 //! (exit 1 or 2) naming the file, node or key, within bounded time and
 //! memory; never a panic (exit 101), an abort or a hang.
 
-use crate::common::{fusegraph, limited, stderr};
+mod common;
+
+use common::{fusegraph, limited, stderr};
 use std::path::Path;
 
 /// One bad input: what to run and what the user must be told.

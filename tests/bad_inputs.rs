@@ -3,7 +3,9 @@
 //! cache. Each gets a clear error (exit 1 or 2) or the right result, never a
 //! panic (exit 101) or a hang.
 
-use crate::common::{fusegraph, stderr};
+mod common;
+
+use common::{fusegraph, stderr};
 use std::io::Read;
 use std::path::Path;
 use std::process::{Command, Stdio};
@@ -161,7 +163,7 @@ fn a_decompression_bomb_fails_clearly_under_a_memory_limit() {
         "[node.img]\nop = \"io.read_image\"\npath = \"bomb.png\"\n",
     )
     .unwrap();
-    let o = crate::common::limited(
+    let o = common::limited(
         &["run", "g.toml", "--no-cache"],
         t.path(),
         1 << 30,

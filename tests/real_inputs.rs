@@ -3,7 +3,9 @@
 //! pairs, an absurd calibration, malformed list parameters; warnings in
 //! report.json and the CLI summary, on a cached re-run too.
 
-use crate::common::{fusegraph, stderr};
+mod common;
+
+use common::{fusegraph, stderr};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 

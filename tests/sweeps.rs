@@ -5,7 +5,9 @@
 //! processes, and a failed variant is reported in its row while the others
 //! finish. Bad sweeps are refused before anything runs.
 
-use crate::common::{chromium, fusegraph, stderr};
+mod common;
+
+use common::{chromium, fusegraph, stderr};
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::Command;

@@ -1,10 +1,11 @@
 //! Nearest-neighbour search over a fixed set of points (a kiddo k-d tree).
 
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
-
-type Tree = ImmutableKdTree<f32, 3>;
 use nalgebra::Point3;
 use std::num::NonZero;
+
+/// kiddo's recommended immutable layout, over f32 coordinates.
+type Tree = ImmutableKdTree<f32, 3>;
 
 /// A k-d tree over a fixed set of points (any one frame, mm).
 ///

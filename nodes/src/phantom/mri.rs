@@ -125,12 +125,12 @@ pub fn synthesize(
     let corners: Vec<Material> = (0..nz + 1)
         .into_par_iter()
         .flat_map_iter(|k| {
-            let (k, corners_k) = (k as f64 - 0.5, &at_voxel);
+            let (k, at_voxel) = (k as f64 - 0.5, &at_voxel);
             (0..cy).flat_map(move |j| {
                 let j = j as f64 - 0.5;
                 let near = near_row((-0.5, nx as f64 - 0.5), j, k, ROUNDING_MM);
                 (0..cx)
-                    .map(|i| near.material_at(&corners_k(i as f64 - 0.5, j, k)))
+                    .map(|i| near.material_at(&at_voxel(i as f64 - 0.5, j, k)))
                     .collect::<Vec<_>>()
             })
         })

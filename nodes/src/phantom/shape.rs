@@ -340,7 +340,19 @@ impl PhantomShape {
     /// What `p` is made of. Markers override tissue (their base is set into the
     /// skin), lesions override tissue.
     pub fn material_at(&self, p: &Point3<f64>) -> Material {
-        for m in &self.markers {
+        self.material_among(&self.markers, &self.lesions, p)
+    }
+
+    /// [`PhantomShape::material_at`] with only `markers` (in the shape's
+    /// order) and `lesions` tested: the same answer wherever the others
+    /// cannot hold `p`.
+    pub(super) fn material_among<'a>(
+        &self,
+        markers: impl IntoIterator<Item = &'a Marker>,
+        lesions: impl IntoIterator<Item = &'a Lesion>,
+        p: &Point3<f64>,
+    ) -> Material {
+        for m in markers {
             if (p - Point3::from(m.skin_point_mm)).norm_squared() <= m.bounding_radius_squared()
                 && let Some(material) = m.material_at(p)
             {
@@ -350,7 +362,7 @@ impl PhantomShape {
         if !self.inside_dome(p) {
             return Material::Background;
         }
-        for l in &self.lesions {
+        for l in lesions {
             if (p - Point3::from(l.center_mm)).norm_squared() <= l.radius_mm * l.radius_mm {
                 return Material::Lesion;
             }

@@ -49,22 +49,11 @@ impl ShapeNear<'_> {
     /// What `p` is made of: [`PhantomShape::material_at`]'s answer for any
     /// point within the margin of the segment this was cut for.
     pub fn material_at(&self, p: &Point3<f64>) -> Material {
-        for m in &self.markers {
-            if (p - Point3::from(m.skin_point_mm)).norm_squared() <= m.bounding_radius_squared()
-                && let Some(material) = m.material_at(p)
-            {
-                return material;
-            }
-        }
-        if !self.shape.inside_dome(p) {
-            return Material::Background;
-        }
-        for l in &self.lesions {
-            if (p - Point3::from(l.center_mm)).norm_squared() <= l.radius_mm * l.radius_mm {
-                return Material::Lesion;
-            }
-        }
-        Material::Tissue
+        self.shape.material_among(
+            self.markers.iter().copied(),
+            self.lesions.iter().copied(),
+            p,
+        )
     }
 }
 

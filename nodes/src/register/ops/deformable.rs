@@ -13,7 +13,8 @@ use nalgebra::{Point3, Vector3};
 /// A smooth displacement field (nonrigid ICP on a lattice, bending-regularised) taking the scanned skin and markers onto those seen now, after the rigid registration; zero (the rigid result kept) where the data do not support one
 #[derive(Op)]
 // 2: the skins thinned to a random subset, not every k-th point.
-#[op(name = "register.deformable", version = 2)]
+// 3: a field must also explain min_explained_share of the rigid residual.
+#[op(name = "register.deformable", version = 3)]
 pub struct Deformable {
     /// deformable: fit the field; rigid: give a zero field (the rigid result), e.g. --set deform.mode=rigid
     #[param(default = DeformMode::Deformable)]
@@ -36,6 +37,9 @@ pub struct Deformable {
     /// A field that explains less than this of the skin's RMS residual after the rigid fit (sqrt(rigid^2 - after^2)) is not applied: no motion beyond what noise and a rigid fit leave
     #[param(default = 0.2, unit = "mm", min = 0.0)]
     pub min_explained_mm: f64,
+    /// A field that explains less than this share of the skin's RMS residual after the rigid fit is not applied either: fitted to the surfaces' noise alone it explains a share that does not shrink as the noise grows (18-60 % on unmoved phantoms, ideal to lab at 6 DN), where real motion leaves a residual it explains nearly all of (99 % and more at 5-10 mm of sag or compression)
+    #[param(default = 0.8, min = 0.0, max = 1.0)]
+    pub min_explained_share: f64,
     /// Each skin is thinned to at most this many points (a random subset, the same every run) for the fit
     #[param(default = 20000, min = 100)]
     pub max_points: usize,
@@ -152,30 +156,26 @@ impl RunOp for Deformable {
                 .max(0.0)
                 .sqrt();
             ctx.metric("explained_residual_mm", explained);
-            if explained < self.min_explained_mm {
-                ctx.note(format!(
-                    "the field explains {explained:.2} mm RMS of the skin's residual after the \
-                     rigid fit ({:.2} -> {:.2} mm), under min_explained_mm = {}: no motion \
-                     beyond what noise and a rigid fit leave, so it is not applied; the rigid \
-                     result stands",
-                    d.rigid_residual_mm, d.residual_mm, self.min_explained_mm
-                ));
-                zero()
-            } else if peak > self.max_motion_mm {
-                ctx.note(format!(
-                    "the field's peak is {peak:.1} mm, over max_motion_mm = {}: more than the \
-                     data support, so it is not applied; the rigid result stands",
-                    self.max_motion_mm
-                ));
-                zero()
-            } else {
-                ctx.note(format!(
-                    "the tissue moved: a field of {rms:.2} mm RMS ({peak:.2} mm peak) takes the \
-                     skin from {:.2} to {:.2} mm RMS residual; the targets' error bars are the \
-                     rigid registration's and do not count the field's own error",
-                    d.rigid_residual_mm, d.residual_mm
-                ));
-                d.field
+            ctx.metric(
+                "explained_share",
+                explained / d.rigid_residual_mm.max(f64::MIN_POSITIVE),
+            );
+            match self.refusal(d.rigid_residual_mm, d.residual_mm, peak) {
+                Some(why) => {
+                    ctx.note(format!(
+                        "{why}, so it is not applied; the rigid result stands"
+                    ));
+                    zero()
+                }
+                None => {
+                    ctx.note(format!(
+                        "the tissue moved: a field of {rms:.2} mm RMS ({peak:.2} mm peak) takes \
+                         the skin from {:.2} to {:.2} mm RMS residual; the targets' error bars \
+                         are the rigid registration's and do not count the field's own error",
+                        d.rigid_residual_mm, d.residual_mm
+                    ));
+                    d.field
+                }
             }
         };
         ctx.metric(
@@ -185,6 +185,40 @@ impl RunOp for Deformable {
         Ok(DeformableOutputs {
             field: field_table(&field),
         })
+    }
+}
+
+impl Deformable {
+    /// Why a fitted field is not to be applied (`None`: it is), from the
+    /// skin's RMS residual after the rigid fit and after the field (mm) and
+    /// the field's peak over the skin (mm).
+    fn refusal(&self, rigid_mm: f64, after_mm: f64, peak_mm: f64) -> Option<String> {
+        let explained = (rigid_mm.powi(2) - after_mm.powi(2)).max(0.0).sqrt();
+        let share = explained / rigid_mm.max(f64::MIN_POSITIVE);
+        if explained < self.min_explained_mm {
+            Some(format!(
+                "the field explains {explained:.2} mm RMS of the skin's residual after the rigid \
+                 fit ({rigid_mm:.2} -> {after_mm:.2} mm), under min_explained_mm = {}: no motion \
+                 beyond what noise and a rigid fit leave",
+                self.min_explained_mm
+            ))
+        } else if share < self.min_explained_share {
+            Some(format!(
+                "the field explains {:.0} % of the skin's residual after the rigid fit \
+                 ({rigid_mm:.2} -> {after_mm:.2} mm), under min_explained_share = {}: no more \
+                 than a field fitted to the surfaces' noise explains",
+                100.0 * share,
+                self.min_explained_share
+            ))
+        } else if peak_mm > self.max_motion_mm {
+            Some(format!(
+                "the field's peak is {peak_mm:.1} mm, over max_motion_mm = {}: more than the data \
+                 support",
+                self.max_motion_mm
+            ))
+        } else {
+            None
+        }
     }
 }
 
@@ -276,6 +310,7 @@ mod tests {
             max_distance_mm: 15.0,
             trim_ratio: 0.9,
             min_explained_mm: 0.2,
+            min_explained_share: 0.8,
             max_motion_mm: 30.0,
             max_points: 20000,
             min_landmarks: 4,
@@ -343,5 +378,27 @@ mod tests {
         i.landmarks_target = None;
         let e = op().run(i, &mut ctx).map(|_| ()).unwrap_err().to_string();
         assert!(e.contains("connect both"), "{e}");
+    }
+
+    #[test]
+    fn a_field_is_refused_when_it_explains_too_little_or_moves_too_far() {
+        let op: Deformable = fusegraph_engine::typed::declared_defaults().unwrap();
+        // Sagged 5 mm (measured): 0.74 mm RMS after the rigid fit, 0.09 after
+        // the field, which explains 99 % of it.
+        assert_eq!(op.refusal(0.743, 0.09, 6.0), None);
+        // Unmoved, lab preset at 6 DN (measured): the field explains 0.22 mm
+        // of 0.67, a third; enough by the absolute rule alone.
+        let noise = op.refusal(0.67, 0.632, 2.0).expect("refused");
+        assert!(noise.contains("min_explained_share"), "{noise}");
+        // Unmoved, ideal: too little in millimetres.
+        let small = op.refusal(0.121, 0.118, 1.0).expect("refused");
+        assert!(small.contains("min_explained_mm"), "{small}");
+        // A peak past max_motion_mm.
+        let far = op.refusal(3.0, 0.5, 45.0).expect("refused");
+        assert!(far.contains("max_motion_mm"), "{far}");
+        // The share's edge: 0.8 of the residual explained is applied.
+        let after_at_edge = (1.0f64 - 0.8 * 0.8).sqrt();
+        assert_eq!(op.refusal(1.0, after_at_edge - 1e-9, 5.0), None);
+        assert!(op.refusal(1.0, after_at_edge + 1e-3, 5.0).is_some());
     }
 }

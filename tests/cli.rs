@@ -636,6 +636,41 @@ fn calibration_meets_the_acceptance_figures_on_the_full_phantom() {
 /// small phantom where a graph makes one (`phantom.size=small`); rig.toml,
 /// which reads a user's folders, has a test of its own. One cache serves
 /// them all, so the phantom is made once.
+/// graphs/disparity_bias.toml measures the main job's dense chain with the
+/// true rig: each of its per-view nodes must be fusion.toml's, but for the
+/// rig it reads (so a change to the main job's matcher, fill or refinement
+/// that the measurement misses fails here).
+#[test]
+fn the_disparity_bias_graph_runs_the_main_jobs_view_chain() {
+    let view_nodes = |name: &str| -> toml::Table {
+        let text = std::fs::read_to_string(graph_file(name)).unwrap();
+        let graph: toml::Table = text.parse().unwrap();
+        graph["each"]["view"]["node"].as_table().unwrap().clone()
+    };
+    let main_job = view_nodes("fusion.toml");
+    let bias = view_nodes("disparity_bias.toml");
+    let mut copied = 0;
+    for (id, node) in &bias {
+        let Some(original) = main_job.get(id) else {
+            continue; // its own truth and evaluation nodes
+        };
+        let on_true_rig = toml::Value::try_from(original)
+            .unwrap()
+            .to_string()
+            .replace("\"stereo.rig\"", "\"truerig.rig\"");
+        assert_eq!(
+            node.to_string(),
+            on_true_rig,
+            "node `{id}` differs from fusion.toml's"
+        );
+        copied += 1;
+    }
+    for id in ["match", "smooth", "refine", "resmooth"] {
+        assert!(bias.contains_key(id), "disparity_bias.toml has no `{id}`");
+    }
+    assert!(copied >= 10, "{copied} nodes in common");
+}
+
 #[test]
 fn every_shipped_graph_runs_with_no_failed_node() {
     let t = tempfile::tempdir().unwrap();

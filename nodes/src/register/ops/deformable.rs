@@ -152,15 +152,10 @@ impl RunOp for Deformable {
                 "How far the deformation moved each point of the skin both see (scan frame), seen along each axis",
                 FigureData::Svg(field_on_skin_svg(&seen, &shifts, &inputs.target.frame)),
             )?;
-            let explained = (d.rigid_residual_mm.powi(2) - d.residual_mm.powi(2))
-                .max(0.0)
-                .sqrt();
-            ctx.metric("explained_residual_mm", explained);
-            ctx.metric(
-                "explained_share",
-                explained / d.rigid_residual_mm.max(f64::MIN_POSITIVE),
-            );
-            match self.refusal(d.rigid_residual_mm, d.residual_mm, peak) {
+            let explained = Explained::of(d.rigid_residual_mm, d.residual_mm);
+            ctx.metric("explained_residual_mm", explained.mm);
+            ctx.metric("explained_share", explained.share);
+            match self.refusal(&explained, peak) {
                 Some(why) => {
                     ctx.note(format!(
                         "{why}, so it is not applied; the rigid result stands"
@@ -188,13 +183,41 @@ impl RunOp for Deformable {
     }
 }
 
+/// How much of the skin's RMS residual after the rigid fit a field explains.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Explained {
+    /// The residual after the rigid fit, mm.
+    rigid_mm: f64,
+    /// The residual after the field, mm.
+    after_mm: f64,
+    /// sqrt(rigid^2 - after^2), mm.
+    mm: f64,
+    /// `mm` as a share of `rigid_mm` (0..1).
+    share: f64,
+}
+
+impl Explained {
+    fn of(rigid_mm: f64, after_mm: f64) -> Explained {
+        let mm = (rigid_mm.powi(2) - after_mm.powi(2)).max(0.0).sqrt();
+        Explained {
+            rigid_mm,
+            after_mm,
+            mm,
+            share: mm / rigid_mm.max(f64::MIN_POSITIVE),
+        }
+    }
+}
+
 impl Deformable {
-    /// Why a fitted field is not to be applied (`None`: it is), from the
-    /// skin's RMS residual after the rigid fit and after the field (mm) and
-    /// the field's peak over the skin (mm).
-    fn refusal(&self, rigid_mm: f64, after_mm: f64, peak_mm: f64) -> Option<String> {
-        let explained = (rigid_mm.powi(2) - after_mm.powi(2)).max(0.0).sqrt();
-        let share = explained / rigid_mm.max(f64::MIN_POSITIVE);
+    /// Why a fitted field is not to be applied (`None`: it is), from what it
+    /// explains of the skin's residual and its peak over the skin (mm).
+    fn refusal(&self, explained: &Explained, peak_mm: f64) -> Option<String> {
+        let &Explained {
+            rigid_mm,
+            after_mm,
+            mm: explained,
+            share,
+        } = explained;
         if explained < self.min_explained_mm {
             Some(format!(
                 "the field explains {explained:.2} mm RMS of the skin's residual after the rigid \
@@ -385,20 +408,30 @@ mod tests {
         let op: Deformable = fusegraph_engine::typed::declared_defaults().unwrap();
         // Sagged 5 mm (measured): 0.74 mm RMS after the rigid fit, 0.11 after
         // the field, which explains 99 % of it.
-        assert_eq!(op.refusal(0.743, 0.109, 6.0), None);
+        assert_eq!(op.refusal(&Explained::of(0.743, 0.109), 6.0), None);
         // Unmoved, lab preset at 6 DN (measured): the field explains 0.22 mm
         // of 0.67, a third; enough by the absolute rule alone.
-        let noise = op.refusal(0.67, 0.632, 2.0).expect("refused");
+        let noise = op
+            .refusal(&Explained::of(0.67, 0.632), 2.0)
+            .expect("refused");
         assert!(noise.contains("min_explained_share"), "{noise}");
         // Unmoved, ideal: too little in millimetres.
-        let small = op.refusal(0.121, 0.118, 1.0).expect("refused");
+        let small = op
+            .refusal(&Explained::of(0.121, 0.118), 1.0)
+            .expect("refused");
         assert!(small.contains("min_explained_mm"), "{small}");
         // A peak past max_motion_mm.
-        let far = op.refusal(3.0, 0.5, 45.0).expect("refused");
+        let far = op.refusal(&Explained::of(3.0, 0.5), 45.0).expect("refused");
         assert!(far.contains("max_motion_mm"), "{far}");
         // The share's edge: 0.8 of the residual explained is applied.
         let after_at_edge = (1.0f64 - 0.8 * 0.8).sqrt();
-        assert_eq!(op.refusal(1.0, after_at_edge - 1e-9, 5.0), None);
-        assert!(op.refusal(1.0, after_at_edge + 1e-3, 5.0).is_some());
+        assert_eq!(
+            op.refusal(&Explained::of(1.0, after_at_edge - 1e-9), 5.0),
+            None
+        );
+        assert!(
+            op.refusal(&Explained::of(1.0, after_at_edge + 1e-3), 5.0)
+                .is_some()
+        );
     }
 }

@@ -1019,6 +1019,9 @@ fn deformable_registration_follows_a_compressed_breast() {
         f("deform.residual_mm") < 0.5 * f("deform.rigid_residual_mm"),
         "{m}"
     );
+    // The scan's flat base is held on the table view 0 sees.
+    assert!(f("deform.support_points") > 1000.0, "{m}");
+    assert!(f("deform.support_residual_mm") < 0.5, "{m}");
     let figure = t.path().join("out/fusion/figures/deform.field.svg");
     assert!(
         figure.metadata().unwrap().len() > 1000,

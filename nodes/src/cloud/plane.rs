@@ -5,6 +5,7 @@
 //! Written here: a few lines over nalgebra; no crate of the field does just
 //! this (Open3D's `segment_plane` is the model).
 
+use fusegraph_engine::value::{Table, ValueError};
 use nalgebra::{Matrix3, Point3, Vector3};
 use rand::{Rng, SeedableRng};
 
@@ -101,26 +102,72 @@ pub fn dominant_plane(
 /// stay when the table under an object is removed: when the dominant plane
 /// ([`dominant_plane`] with `threshold_mm`, `iterations` and `seed`) holds at
 /// least `min_fraction` of the points, those more than `threshold_mm` off it
-/// on the camera's side; else every point. Also the fraction of the points
-/// the removed plane held (0 when none was removed).
+/// on the camera's side; else every point. Also the table (its normal
+/// towards the camera) and the fraction of the points it held (`None` and 0
+/// when none was removed).
 pub fn off_table(
     points: &[Point3<f64>],
     threshold_mm: f64,
     min_fraction: f64,
     iterations: usize,
     seed: u64,
-) -> (Vec<bool>, f64) {
+) -> (Vec<bool>, Option<Plane>, f64) {
     match dominant_plane(points, threshold_mm, iterations, seed) {
         Some((plane, held)) if held as f64 >= min_fraction * points.len() as f64 => {
             // The camera's side of the plane is where the origin is.
-            let side = -plane.distance(&Point3::origin()).signum();
+            let towards_camera = plane.distance(&Point3::origin()).signum();
+            let table = Plane {
+                normal: plane.normal * towards_camera,
+                offset: plane.offset * towards_camera,
+            };
             let keep = points
                 .iter()
-                .map(|p| side * plane.distance(p) < -threshold_mm)
+                .map(|p| table.distance(p) > threshold_mm)
                 .collect();
-            (keep, held as f64 / points.len() as f64)
+            (keep, Some(table), held as f64 / points.len() as f64)
         }
-        _ => (vec![true; points.len()], 0.0),
+        _ => (vec![true; points.len()], None, 0.0),
+    }
+}
+
+/// The columns of a plane as a table: normal_x, normal_y, normal_z, offset_mm.
+pub const PLANE_COLUMNS: [&str; 4] = ["normal_x", "normal_y", "normal_z", "offset_mm"];
+
+/// A plane as a one-row table ([`PLANE_COLUMNS`]); no rows for `None`.
+pub fn plane_table(plane: Option<&Plane>) -> Result<Table, ValueError> {
+    let data: Vec<f64> = plane
+        .map(|p| vec![p.normal.x, p.normal.y, p.normal.z, p.offset])
+        .unwrap_or_default();
+    Table::new(PLANE_COLUMNS.map(String::from).to_vec(), data)
+}
+
+/// The plane a [`plane_table`] holds: `Ok(None)` without rows, an error
+/// naming what is wrong for other columns, several rows or a normal that is
+/// not a unit vector.
+pub fn plane_from_table(table: &Table) -> Result<Option<Plane>, String> {
+    if table.columns != PLANE_COLUMNS {
+        return Err(format!(
+            "a plane's columns are {}, not {}",
+            PLANE_COLUMNS.join(", "),
+            table.columns.join(", ")
+        ));
+    }
+    match table.row_count() {
+        0 => Ok(None),
+        1 => {
+            let r = table.row(0);
+            let normal = Vector3::new(r[0], r[1], r[2]);
+            if !((normal.norm() - 1.0).abs() < 1e-6 && r[3].is_finite()) {
+                return Err(format!(
+                    "the plane's normal {normal:?} is not a unit vector"
+                ));
+            }
+            Ok(Some(Plane {
+                normal,
+                offset: r[3],
+            }))
+        }
+        n => Err(format!("a plane is one row, not {n}")),
     }
 }
 
@@ -172,12 +219,36 @@ mod tests {
             Point3::new(10.0, 10.0, 480.0),
             Point3::new(10.0, 10.0, 520.0),
         ]);
-        let (keep, fraction) = off_table(&pts, 1.0, 0.5, 50, 1);
+        let (keep, table, fraction) = off_table(&pts, 1.0, 0.5, 50, 1);
         assert_eq!(keep.iter().filter(|k| **k).count(), 1);
         assert!(keep[400] && !keep[401]);
         assert!((fraction - 400.0 / 402.0).abs() < 1e-12);
+        // The table faces the camera: z = 500 with its normal along -z.
+        let table = table.unwrap();
+        assert!((table.normal - Vector3::new(0.0, 0.0, -1.0)).norm() < 1e-9);
+        assert!((table.offset + 500.0).abs() < 1e-9);
+        assert!(table.distance(&Point3::origin()) > 0.0);
         // Too small a share of the points: nothing goes.
-        let (keep, fraction) = off_table(&pts, 1.0, 0.999, 50, 1);
-        assert_eq!((keep, fraction), (vec![true; 402], 0.0));
+        let (keep, table, fraction) = off_table(&pts, 1.0, 0.999, 50, 1);
+        assert_eq!((keep, table, fraction), (vec![true; 402], None, 0.0));
+    }
+
+    #[test]
+    fn a_plane_goes_through_a_table_and_back() {
+        let plane = Plane {
+            normal: Vector3::new(0.0, 0.6, -0.8),
+            offset: -412.5,
+        };
+        let table = plane_table(Some(&plane)).unwrap();
+        assert_eq!(plane_from_table(&table).unwrap(), Some(plane));
+        assert_eq!(plane_from_table(&plane_table(None).unwrap()).unwrap(), None);
+        let stretched = Table::new(
+            PLANE_COLUMNS.map(String::from).to_vec(),
+            vec![0.0, 0.0, 2.0, 1.0],
+        )
+        .unwrap();
+        assert!(plane_from_table(&stretched).unwrap_err().contains("unit"));
+        let other = Table::new(vec!["x".into()], vec![1.0]).unwrap();
+        assert!(plane_from_table(&other).unwrap_err().contains("columns"));
     }
 }

@@ -16,8 +16,8 @@ mod target_error;
 mod targets;
 
 pub use deformable::{
-    DeformParams, Deformation, FIELD_COLUMNS, LandmarkPairs, Lattice, displacement_stats,
-    fit_deformation,
+    DeformParams, Deformation, FIELD_COLUMNS, LandmarkPairs, Lattice, Support, base_on,
+    displacement_stats, fit_deformation,
 };
 pub use icp::{
     Anchors, IcpMethod, IcpParams, IcpResult, IcpStep, Kernel, icp, icp_anchored, normals_near,

@@ -1,13 +1,14 @@
 //! `cloud.remove_plane`: the table under the object, and what lies beyond it.
 
 use crate::cloud::convert::cloud_points;
-use crate::cloud::off_table;
+use crate::cloud::{off_table, plane_table};
 use fusegraph_engine::typed::prelude::*;
-use fusegraph_engine::value::PointCloud;
+use fusegraph_engine::value::{PointCloud, Table};
 
 /// Removes the dominant plane (the table under the object) and what lies beyond it, by RANSAC
 #[derive(Op)]
-#[op(name = "cloud.remove_plane", version = 1)]
+// 2: the table itself as an output.
+#[op(name = "cloud.remove_plane", version = 2)]
 pub struct RemovePlane {
     /// Points this close to the plane are on it
     #[param(default = 3.0, unit = "mm", min = 1e-3)]
@@ -33,6 +34,10 @@ pub struct RemovePlaneInputs {
 pub struct RemovePlaneOutputs {
     /// The points off the plane on the camera's side (normals and colours kept)
     pub cloud: PointCloud,
+    /// The table, in the cloud's frame: one row (normal_x, normal_y, normal_z,
+    /// offset_mm; the points p with normal . p = offset, the unit normal
+    /// towards the camera), or none when no plane held min_fraction
+    pub plane: Table,
 }
 
 impl RunOp for RemovePlane {
@@ -41,7 +46,7 @@ impl RunOp for RemovePlane {
 
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
         let c = inputs.cloud;
-        let (keep, plane_fraction) = off_table(
+        let (keep, table, plane_fraction) = off_table(
             &cloud_points(&c),
             self.threshold_mm,
             self.min_fraction,
@@ -53,6 +58,7 @@ impl RunOp for RemovePlane {
         ctx.metric("points", kept as f64);
         Ok(RemovePlaneOutputs {
             cloud: c.select(&keep).map_err(|e| OpError::invalid(e.0))?,
+            plane: plane_table(table.as_ref()).map_err(|e| OpError::invalid(e.0))?,
         })
     }
 }

@@ -6,13 +6,16 @@
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
-/// One data row: a scan point's stencil, the direction(s) it is measured
-/// along, and its target.
+/// One data row: a scan point's stencil, the direction it is measured
+/// along, its target and its weight.
+#[derive(Clone)]
 pub(super) struct SurfaceRow {
     pub(super) stencil: [(usize, f64); 8],
     pub(super) normal: Vector3<f64>,
     /// n . (c - s), mm.
     pub(super) target: f64,
+    /// The row's weight in the sum of squares.
+    pub(super) weight: f64,
 }
 
 /// A landmark's row: its stencil, the projection across the skin's
@@ -32,7 +35,6 @@ pub(super) struct System<'a> {
     pub(super) edges: &'a [(usize, usize)],
     pub(super) triples: &'a [[usize; 3]],
     pub(super) nodes: usize,
-    pub(super) surface_weight: f64,
     pub(super) landmark_weight: f64,
     pub(super) edge_weight: f64,
     pub(super) bend_weight: f64,
@@ -55,7 +57,7 @@ impl System<'_> {
                         .iter()
                         .map(|&(n, w)| w * r.normal.dot(&u[n]))
                         .sum();
-                    let g = r.normal * (self.surface_weight * v);
+                    let g = r.normal * (r.weight * v);
                     for &(n, w) in &r.stencil {
                         part[n] += g * w;
                     }
@@ -94,7 +96,7 @@ impl System<'_> {
     fn rhs(&self) -> Vec<Vector3<f64>> {
         let mut out = vec![Vector3::zeros(); self.nodes];
         for r in self.surface {
-            let g = r.normal * (self.surface_weight * r.target);
+            let g = r.normal * (r.weight * r.target);
             for &(n, w) in &r.stencil {
                 out[n] += g * w;
             }
@@ -112,7 +114,7 @@ impl System<'_> {
     fn preconditioner(&self) -> Vec<Matrix3<f64>> {
         let mut blocks = vec![Matrix3::zeros(); self.nodes];
         for r in self.surface {
-            let nn = r.normal * r.normal.transpose() * self.surface_weight;
+            let nn = r.normal * r.normal.transpose() * r.weight;
             for &(n, w) in &r.stencil {
                 blocks[n] += nn * (w * w);
             }

@@ -2,9 +2,12 @@
 //! takes the scanned skin and markers onto those seen now.
 
 use crate::cloud::convert::{cloud_normals, cloud_points};
+use crate::cloud::{Plane, plane_from_table};
 use crate::register::convert::{MatchedLandmarks, field_table, landmark_pairs, transform_isometry};
 use crate::register::figures::field_on_skin_svg;
-use crate::register::{DeformParams, LandmarkPairs, Lattice, displacement_stats, fit_deformation};
+use crate::register::{
+    DeformParams, LandmarkPairs, Lattice, Support, base_on, displacement_stats, fit_deformation,
+};
 use fusegraph_engine::figure::FigureData;
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Markers, PointCloud, Table, Transform};
@@ -14,7 +17,8 @@ use nalgebra::{Point3, Vector3};
 #[derive(Op)]
 // 2: the skins thinned to a random subset, not every k-th point.
 // 3: a field must also explain min_explained_share of the rigid residual.
-#[op(name = "register.deformable", version = 3)]
+// 4: the scan's flat base rests on the plane seen now (input support).
+#[op(name = "register.deformable", version = 4)]
 pub struct Deformable {
     /// deformable: fit the field; rigid: give a zero field (the rigid result), e.g. --set deform.mode=rigid
     #[param(default = DeformMode::Deformable)]
@@ -28,6 +32,9 @@ pub struct Deformable {
     /// The markers' total weight against the whole skin's (they pin a slide along the skin the surfaces cannot see)
     #[param(default = 0.1, min = 0.0)]
     pub landmark_weight: f64,
+    /// With a support plane: the scan's flat base resting on it weighs this much against the whole skin
+    #[param(default = 1.0, min = 0.0)]
+    pub support_weight: f64,
     /// Pairs of skin points farther apart than this are left out
     #[param(default = 15.0, unit = "mm", min = 0.1)]
     pub max_distance_mm: f64,
@@ -72,6 +79,8 @@ pub struct DeformableInputs {
     pub landmarks_source: Option<Arc<Markers>>,
     /// The same markers in the scan
     pub landmarks_target: Option<Arc<Markers>>,
+    /// The plane the tissue rests on now, in the source's frame (cloud.remove_plane's `plane`: the table under a phantom, the support around a breast's root); the scan's flat base is held on it, so the field is interpolated between skin and base inside rather than carried down from the skin; none, or a scan without a flat base: skin and markers alone
+    pub support: Option<Arc<Table>>,
 }
 
 #[derive(Outputs)]
@@ -107,10 +116,12 @@ impl RunOp for Deformable {
             .map(|p| iso * p)
             .collect();
         let landmarks = landmark_points(&inputs, &iso)?;
+        let support = self.support(&inputs, &iso, &scan, &normals, ctx)?;
         let params = DeformParams {
             spacing_mm: self.spacing_mm,
             stiffness_mm: self.stiffness_mm,
             landmark_weight: self.landmark_weight,
+            support_weight: self.support_weight,
             max_distance_mm: self.max_distance_mm,
             trim_ratio: self.trim_ratio,
             ..DeformParams::default()
@@ -135,9 +146,14 @@ impl RunOp for Deformable {
                 landmarks
                     .as_ref()
                     .map(|(a, b)| LandmarkPairs { scan: b, now: a }),
+                support.as_ref(),
                 &params,
             )
             .map_err(OpError::invalid)?;
+            if support.is_some() {
+                ctx.metric("rigid_support_residual_mm", d.rigid_support_residual_mm);
+                ctx.metric("support_residual_mm", d.support_residual_mm);
+            }
             let seen: Vec<Point3<f64>> = d.seen.iter().map(|&j| scan[j]).collect();
             let shifts: Vec<Vector3<f64>> = seen.iter().map(|p| d.field.displacement(p)).collect();
             let (peak, rms) = displacement_stats(&shifts);
@@ -209,6 +225,43 @@ impl Explained {
 }
 
 impl Deformable {
+    /// The scan's flat base and the support plane (moved into the scan's
+    /// frame) it rests on, when a plane is given and the scan has such a
+    /// base; else `None`, with a note saying why.
+    fn support(
+        &self,
+        inputs: &DeformableInputs,
+        iso: &nalgebra::Isometry3<f64>,
+        scan: &[Point3<f64>],
+        normals: &[Vector3<f64>],
+        ctx: &mut RunCtx,
+    ) -> Result<Option<Support>, OpError> {
+        let Some(table) = inputs.support.as_deref() else {
+            return Ok(None);
+        };
+        let Some(plane) =
+            plane_from_table(table).map_err(|e| OpError::invalid(format!("support: {e}")))?
+        else {
+            ctx.note("the support input holds no plane: skin and markers alone");
+            return Ok(None);
+        };
+        let normal = iso.rotation * plane.normal;
+        let plane = Plane {
+            normal,
+            offset: plane.offset + normal.dot(&iso.translation.vector),
+        };
+        match base_on(scan, normals, &plane) {
+            Ok(support) => {
+                ctx.metric("support_points", support.base.len() as f64);
+                Ok(Some(support))
+            }
+            Err(why) => {
+                ctx.note(format!("{why}: the support plane is not used"));
+                Ok(None)
+            }
+        }
+    }
+
     /// Why a fitted field is not to be applied (`None`: it is), from what it
     /// explains of the skin's residual and its peak over the skin (mm).
     fn refusal(&self, explained: &Explained, peak_mm: f64) -> Option<String> {
@@ -321,6 +374,7 @@ mod tests {
             target: cloud(&scan, Some(&normals), "mri_lps"),
             landmarks_source: Some(markers(&seen, "camera_left")),
             landmarks_target: Some(markers(&marks, "mri_lps")),
+            support: None,
         }
     }
 
@@ -330,6 +384,7 @@ mod tests {
             stiffness_mm: 10.0,
             spacing_mm: 10.0,
             landmark_weight: 0.1,
+            support_weight: 1.0,
             max_distance_mm: 15.0,
             trim_ratio: 0.9,
             min_explained_mm: 0.2,
@@ -383,6 +438,55 @@ mod tests {
                 .iter()
                 .any(|n| n.contains("3 matched markers, under min_landmarks = 4"))
         );
+    }
+
+    #[test]
+    fn a_support_plane_is_used_where_the_scan_has_a_base_on_it_and_a_bad_one_named() {
+        use crate::cloud::plane_table;
+        let table = |normal: Vector3<f64>| {
+            let plane = Plane {
+                normal,
+                offset: 0.0,
+            };
+            Some(Arc::new(plane_table(Some(&plane)).unwrap()))
+        };
+        // The dome's skin has no flat base: noted, skin and markers alone.
+        let mut ctx = RunCtx::new("deform", &std::env::temp_dir());
+        let mut i = inputs(6.0, 12);
+        i.support = table(Vector3::z());
+        op().run(i, &mut ctx).unwrap();
+        assert!(!ctx.metrics().contains_key("support_points"));
+        assert!(
+            ctx.notes()
+                .iter()
+                .any(|n| n.contains("no flat base") && n.contains("not used")),
+            "{:?}",
+            ctx.notes()
+        );
+        // With its base disc, on the table z = 0: the base is held there.
+        let mut ctx = RunCtx::new("deform", &std::env::temp_dir());
+        let mut i = inputs(6.0, 12);
+        let (mut scan, mut normals) = dome(4.0);
+        for x in -15..=15 {
+            for y in -15..=15 {
+                let p = Point3::new(4.0 * x as f64, 4.0 * y as f64, 0.0);
+                if p.coords.xy().norm() < 64.0 {
+                    scan.push(p);
+                    normals.push(-Vector3::z());
+                }
+            }
+        }
+        i.target = cloud(&scan, Some(&normals), "mri_lps");
+        i.support = table(Vector3::z());
+        op().run(i, &mut ctx).unwrap();
+        let m = ctx.metrics();
+        assert!(m["support_points"] > 100.0, "{m:?}");
+        assert!(m["support_residual_mm"] < 0.2, "{m:?}");
+        // Not a plane: an error naming the input.
+        let mut i = inputs(6.0, 12);
+        i.support = Some(Arc::new(Table::new(vec!["x".into()], vec![1.0]).unwrap()));
+        let e = op().run(i, &mut ctx).map(|_| ()).unwrap_err().to_string();
+        assert!(e.contains("support: a plane's columns"), "{e}");
     }
 
     #[test]

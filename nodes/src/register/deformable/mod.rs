@@ -404,6 +404,23 @@ pub(crate) mod tests {
         (points, normals)
     }
 
+    /// [`dome`] with its flat base: a disc on the table z = 0 sampled every
+    /// `step_mm`, its normals down.
+    pub(crate) fn dome_with_base(step_mm: f64) -> (Vec<Point3<f64>>, Vec<Vector3<f64>>) {
+        let (mut points, mut normals) = dome(step_mm);
+        let n = (64.0 / step_mm).ceil() as i64;
+        for i in -n..=n {
+            for j in -n..=n {
+                let p = Point3::new(step_mm * i as f64, step_mm * j as f64, 0.0);
+                if p.coords.xy().norm() < 64.0 {
+                    points.push(p);
+                    normals.push(-Vector3::z());
+                }
+            }
+        }
+        (points, normals)
+    }
+
     /// A sag of `peak_mm` at the apex: down and sideways (+x), growing with
     /// height as a smoothstep (none on the table).
     fn sag(p: &Point3<f64>, peak_mm: f64) -> Vector3<f64> {
@@ -586,16 +603,7 @@ pub(crate) mod tests {
         // motion), the table under it moved the same. Skin and markers alone
         // carry the skin's motion down inside; the base held on the table
         // (from 4 mm off it) bends the field back towards the table's.
-        let (mut scan, mut normals) = dome(2.5);
-        for i in -26..=26 {
-            for j in -26..=26 {
-                let p = Point3::new(2.5 * i as f64, 2.5 * j as f64, 0.0);
-                if p.coords.xy().norm() < 64.0 {
-                    scan.push(p);
-                    normals.push(-Vector3::z());
-                }
-            }
-        }
+        let (scan, normals) = dome_with_base(2.5);
         let offset = Vector3::new(0.0, 0.0, 4.0);
         let moved = |p: &Point3<f64>| p + compression(p, 10.0) + offset;
         let now: Vec<Point3<f64>> = dome(2.0)

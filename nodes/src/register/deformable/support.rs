@@ -98,7 +98,7 @@ pub fn base_on(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::register::deformable::tests::dome;
+    use crate::register::deformable::tests::{dome, dome_with_base};
 
     #[test]
     fn a_domes_base_is_found_facing_its_table_and_a_skin_without_one_is_refused() {
@@ -111,16 +111,7 @@ mod tests {
         let e = base_on(&points, &normals, &table).unwrap_err();
         assert!(e.contains("no flat base"), "{e}");
         // With its base disc (z = 0, normals down).
-        let (mut scan, mut outward) = (points.clone(), normals.clone());
-        for i in -30..=30 {
-            for j in -30..=30 {
-                let p = Point3::new(2.0 * i as f64, 2.0 * j as f64, 0.0);
-                if p.coords.xy().norm() < 64.0 {
-                    scan.push(p);
-                    outward.push(-Vector3::z());
-                }
-            }
-        }
+        let (scan, outward) = dome_with_base(3.0);
         let support = base_on(&scan, &outward, &table).unwrap();
         assert_eq!(support.base.len(), scan.len() - points.len());
         assert!(support.base.iter().all(|p| p.z == 0.0));

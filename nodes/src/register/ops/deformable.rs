@@ -337,7 +337,7 @@ fn landmark_points(
 mod tests {
     use super::*;
     use crate::register::convert::field_from_table;
-    use crate::register::deformable::tests::dome;
+    use crate::register::deformable::tests::{dome, dome_with_base};
 
     fn cloud(
         points: &[Point3<f64>],
@@ -466,16 +466,7 @@ mod tests {
         // With its base disc, on the table z = 0: the base is held there.
         let mut ctx = RunCtx::new("deform", &std::env::temp_dir());
         let mut i = inputs(6.0, 12);
-        let (mut scan, mut normals) = dome(4.0);
-        for x in -15..=15 {
-            for y in -15..=15 {
-                let p = Point3::new(4.0 * x as f64, 4.0 * y as f64, 0.0);
-                if p.coords.xy().norm() < 64.0 {
-                    scan.push(p);
-                    normals.push(-Vector3::z());
-                }
-            }
-        }
+        let (scan, normals) = dome_with_base(4.0);
         i.target = cloud(&scan, Some(&normals), "mri_lps");
         i.support = table(Vector3::z());
         op().run(i, &mut ctx).unwrap();

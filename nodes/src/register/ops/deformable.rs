@@ -252,6 +252,14 @@ impl Deformable {
         };
         match base_on(scan, normals, &plane) {
             Ok(support) => {
+                let off_mm = support.residual_mm(|_| Vector3::zeros());
+                if off_mm > self.max_distance_mm {
+                    ctx.note(format!(
+                        "the scan's flat base lies {off_mm:.1} mm RMS from the support plane after                          the rigid fit, over max_distance_mm = {}: not the plane it rests on, so                          it is not used",
+                        self.max_distance_mm
+                    ));
+                    return Ok(None);
+                }
                 ctx.metric("support_points", support.base.len() as f64);
                 Ok(Some(support))
             }
@@ -473,6 +481,24 @@ mod tests {
         let m = ctx.metrics();
         assert!(m["support_points"] > 100.0, "{m:?}");
         assert!(m["support_residual_mm"] < 0.2, "{m:?}");
+        // A plane 40 mm under the base is not what it rests on.
+        let mut ctx = RunCtx::new("deform", &std::env::temp_dir());
+        let mut i = inputs(6.0, 12);
+        i.target = cloud(&scan, Some(&normals), "mri_lps");
+        let far = Plane {
+            normal: Vector3::z(),
+            offset: -40.0,
+        };
+        i.support = Some(Arc::new(plane_table(Some(&far)).unwrap()));
+        op().run(i, &mut ctx).unwrap();
+        assert!(!ctx.metrics().contains_key("support_points"));
+        assert!(
+            ctx.notes()
+                .iter()
+                .any(|n| n.contains("40.0 mm RMS from the support plane")),
+            "{:?}",
+            ctx.notes()
+        );
         // Not a plane: an error naming the input.
         let mut i = inputs(6.0, 12);
         i.support = Some(Arc::new(Table::new(vec!["x".into()], vec![1.0]).unwrap()));

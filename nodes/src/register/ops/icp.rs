@@ -25,7 +25,8 @@ use nalgebra::{Isometry3, Matrix6, Point3, Vector3};
 // 6: and a disparity offset the source surface's views share
 //    (`matcher_bias_sd_px`); every block's residuals corrected for its
 //    leverage.
-#[op(name = "register.icp", version = 6)]
+// 7: the calibration's part of the covariance as an output of its own.
+#[op(name = "register.icp", version = 7)]
 pub struct Icp {
     /// Error metric
     #[param(default = IcpMethod::PointToPlane)]
@@ -176,6 +177,10 @@ pub struct IcpOutputs {
     /// transform in the target frame; 6 x 6, one row per column (no rows
     /// where the final pairs do not pin the pose)
     pub covariance: Table,
+    /// The part of `covariance` the rig's calibration gives (same layout;
+    /// no rows without a rig): with register.map_targets' input of that
+    /// name, each target's error budget
+    pub calibration_covariance: Table,
 }
 
 impl RunOp for Icp {
@@ -298,15 +303,21 @@ impl RunOp for Icp {
             ),
             None => Matrix6::zeros(),
         };
-        let covariance = match spread {
+        let (covariance, calibration_covariance) = match spread {
             Ok(spread) => {
                 let with_bias = field.as_ref().is_some_and(|(_, bias)| *bias);
-                report_spread(ctx, &spread, &frame_spread, with_bias);
-                pose_covariance_table(&(spread.covariance + frame_spread))
+                let calibration = report_spread(ctx, &spread, &frame_spread, with_bias);
+                (
+                    pose_covariance_table(&(spread.covariance + frame_spread)),
+                    match field {
+                        Some(_) => pose_covariance_table(&calibration),
+                        None => empty_pose_covariance(),
+                    },
+                )
             }
             Err(e) => {
                 ctx.note(format!("no pose covariance: {e}"));
-                empty_pose_covariance()
+                (empty_pose_covariance(), empty_pose_covariance())
             }
         };
         ctx.metric("covariance_ms", started.elapsed().as_secs_f64() * 1e3);
@@ -314,6 +325,7 @@ impl RunOp for Icp {
             transform: transform_value(&r.transform, &s.frame, &t.frame),
             trace,
             covariance,
+            calibration_covariance,
         })
     }
 }
@@ -377,8 +389,14 @@ fn source_shift_field(
 
 /// The pose's standard deviations and what they come from, as metrics:
 /// the fit's own spread `s` (its shift field's last direction the matcher's
-/// bias when `with_bias`) and the source frame's carried into it.
-fn report_spread(ctx: &mut RunCtx, s: &PoseSpread, frame: &Matrix6<f64>, with_bias: bool) {
+/// bias when `with_bias`) and the source frame's carried into it. Returns
+/// the calibration's part of the covariance.
+fn report_spread(
+    ctx: &mut RunCtx,
+    s: &PoseSpread,
+    frame: &Matrix6<f64>,
+    with_bias: bool,
+) -> Matrix6<f64> {
     let rotation = |c: &Matrix6<f64>| (0..3).map(|i| c[(i, i)]).sum::<f64>().max(0.0).sqrt();
     let translation = |c: &Matrix6<f64>| (3..6).map(|i| c[(i, i)]).sum::<f64>().max(0.0).sqrt();
     let total = s.covariance + frame;
@@ -400,6 +418,7 @@ fn report_spread(ctx: &mut RunCtx, s: &PoseSpread, frame: &Matrix6<f64>, with_bi
         ctx.metric("matcher_bias_translation_sd_mm", translation(&bias));
     }
     ctx.metric("error_blocks", s.blocks as f64);
+    calibration
 }
 
 #[cfg(test)]
@@ -480,6 +499,18 @@ mod tests {
         let wrong = Table::new(vec!["x_mm".into()], vec![1.0]).unwrap();
         let e = run(Some(wrong)).unwrap_err().to_string();
         assert!(e.contains("source_covariance"), "{e}");
+    }
+
+    #[test]
+    fn without_a_rig_the_calibrations_part_is_empty() {
+        let op: Icp =
+            fusegraph_engine::typed::declared_defaults().expect("every parameter has a default");
+        let mut i = inputs(None, None);
+        (i.source, i.target) = (bowl("camera_left"), bowl("mri_lps"));
+        let mut ctx = RunCtx::new("icp", &std::env::temp_dir());
+        let out = op.run(i, &mut ctx).unwrap();
+        assert_eq!(out.covariance.row_count(), 6);
+        assert_eq!(out.calibration_covariance.row_count(), 0);
     }
 
     #[test]

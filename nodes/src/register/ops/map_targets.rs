@@ -18,7 +18,8 @@ use nalgebra::{Matrix3, Point3};
 // 3: each target's predicted error from the registration's covariance.
 // 5: the targets given or detected in the scan.
 // 6: targets moved by a deformation.
-#[op(name = "register.map_targets", version = 6)]
+// 7: each target's calibration part (calibration_covariance).
+#[op(name = "register.map_targets", version = 7)]
 pub struct MapTargets {
     /// Phantom view whose left camera is camera_left
     #[param(default = 0, min = 0)]
@@ -57,6 +58,11 @@ pub struct MapTargetsInputs {
     /// The registration's pose covariance (register.icp's `covariance`):
     /// each target's predicted error, its covariance and 95 % bound
     pub covariance: Option<Arc<Table>>,
+    /// The part of `covariance` the calibration gives (register.icp's
+    /// `calibration_covariance`): each target's predicted RMS error from
+    /// the calibration alone, `target_<id>_calibration_tre_mm` (the rest is
+    /// the surfaces', markers' and matcher's)
+    pub calibration_covariance: Option<Arc<Table>>,
     /// A displacement field in the targets' frame (register.deformable's
     /// `field`): each target moves by it before the transform maps it; its
     /// truth is still taken from where it was scanned
@@ -144,6 +150,20 @@ impl RunOp for MapTargets {
             }
             None => Vec::new(),
         };
+        if let Some(table) = inputs.calibration_covariance.as_deref()
+            && table.row_count() > 0
+        {
+            let pose = pose_covariance_from_table(table)
+                .map_err(|e| OpError::invalid(format!("calibration_covariance: {e}")))?;
+            let parts = mapped_target_covariances(&moved, &targets.frame, &transform, &pose)
+                .map_err(OpError::invalid)?;
+            for (id, c) in targets.ids.iter().zip(&parts) {
+                ctx.metric(
+                    &format!("target_{id}_calibration_tre_mm"),
+                    c.trace().max(0.0).sqrt(),
+                );
+            }
+        }
         let rows: Vec<Vec<f64>> = targets
             .ids
             .iter()
@@ -327,6 +347,7 @@ mod tests {
             landmarks_source: Some(markers(&camera, camera_frame)),
             landmarks_target: Some(markers(&MRI_MARKERS, "mri_lps")),
             covariance: None,
+            calibration_covariance: None,
             deformation: None,
         }
     }
@@ -367,8 +388,14 @@ mod tests {
         let table = crate::register::convert::pose_covariance_table(
             &nalgebra::Matrix6::from_diagonal(&sd2),
         );
+        // The calibration's part: 0.05 mm along z alone.
+        let calibration =
+            crate::register::convert::pose_covariance_table(&nalgebra::Matrix6::from_diagonal(
+                &nalgebra::Vector6::new(0.0, 0.0, 0.0, 0.0, 0.0, 0.0025),
+            ));
         let mut i = inputs("camera_left");
         i.covariance = Some(Arc::new(table));
+        i.calibration_covariance = Some(Arc::new(calibration));
         let mut ctx = RunCtx::new("targets", &std::env::temp_dir());
         let out = GIVEN.run(i, &mut ctx).unwrap();
         assert_eq!(out.errors.row_count(), 2);
@@ -378,6 +405,8 @@ mod tests {
             let bound = m[&format!("target_{id}_bound95_mm")];
             assert!((rms - 0.03f64.sqrt()).abs() < 1e-9, "{rms}");
             assert!((bound - 0.07815f64.sqrt()).abs() < 0.005, "{bound}");
+            let part = m[&format!("target_{id}_calibration_tre_mm")];
+            assert!((part - 0.05).abs() < 1e-9, "{part}");
         }
         assert_eq!(out.errors.columns[1], "predicted_tre_mm");
         assert!((out.errors.data[3] - 0.1).abs() < 1e-9, "sd_x_mm");

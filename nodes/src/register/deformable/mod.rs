@@ -111,8 +111,8 @@ pub struct Deformation {
     pub rigid_landmark_residual_mm: f64,
     /// The same after, mm.
     pub landmark_residual_mm: f64,
-    /// RMS distance of the scan's base from the plane it rests on before
-    /// and after, mm (NaN without a support).
+    /// RMS distance of the scan's base from the plane it rests on, before
+    /// the field (after the rigid fit alone), mm (NaN without a support).
     pub rigid_support_residual_mm: f64,
     /// The same after, mm.
     pub support_residual_mm: f64,

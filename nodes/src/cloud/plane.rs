@@ -6,7 +6,7 @@
 //! this (Open3D's `segment_plane` is the model).
 
 use fusegraph_engine::value::{Table, ValueError};
-use nalgebra::{Matrix3, Point3, Vector3};
+use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use rand::{Rng, SeedableRng};
 
 /// A plane `normal . p = offset` (unit normal, mm).
@@ -22,6 +22,17 @@ impl Plane {
     /// Signed distance of `p` from the plane, mm.
     pub fn distance(&self, p: &Point3<f64>) -> f64 {
         self.normal.dot(&p.coords) - self.offset
+    }
+
+    /// The same plane in another frame: where `motion` takes this frame's
+    /// points (`normal . p = offset` becomes `R normal . q = offset + R
+    /// normal . t` for q = R p + t).
+    pub fn moved_by(&self, motion: &Isometry3<f64>) -> Plane {
+        let normal = motion.rotation * self.normal;
+        Plane {
+            normal,
+            offset: self.offset + normal.dot(&motion.translation.vector),
+        }
     }
 
     /// The least-squares plane through `points` (at least 3, not collinear).
@@ -250,5 +261,22 @@ mod tests {
         assert!(plane_from_table(&stretched).unwrap_err().contains("unit"));
         let other = Table::new(vec!["x".into()], vec![1.0]).unwrap();
         assert!(plane_from_table(&other).unwrap_err().contains("columns"));
+    }
+
+    #[test]
+    fn a_moved_plane_holds_the_moved_points() {
+        let plane = Plane {
+            normal: Vector3::new(0.0, 0.6, -0.8),
+            offset: -412.5,
+        };
+        let motion = Isometry3::new(Vector3::new(12.0, -40.0, 7.5), Vector3::new(0.3, -0.2, 1.1));
+        let moved = plane.moved_by(&motion);
+        // Points on the plane and 3 mm off it keep their signed distance.
+        let on = Point3::new(10.0, -250.0, 328.125);
+        assert!(plane.distance(&on).abs() < 1e-9);
+        for off in [0.0, 3.0] {
+            let p = on + plane.normal * off;
+            assert!((moved.distance(&(motion * p)) - off).abs() < 1e-9);
+        }
     }
 }

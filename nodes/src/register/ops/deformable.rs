@@ -2,7 +2,7 @@
 //! takes the scanned skin and markers onto those seen now.
 
 use crate::cloud::convert::{cloud_normals, cloud_points};
-use crate::cloud::{Plane, plane_from_table};
+use crate::cloud::plane_from_table;
 use crate::register::convert::{MatchedLandmarks, field_table, landmark_pairs, transform_isometry};
 use crate::register::figures::field_on_skin_svg;
 use crate::register::{
@@ -245,12 +245,7 @@ impl Deformable {
             ctx.note("the support input holds no plane: skin and markers alone");
             return Ok(None);
         };
-        let normal = iso.rotation * plane.normal;
-        let plane = Plane {
-            normal,
-            offset: plane.offset + normal.dot(&iso.translation.vector),
-        };
-        match base_on(scan, normals, &plane) {
+        match base_on(scan, normals, &plane.moved_by(iso)) {
             Ok(support) => {
                 let off_mm = support.residual_mm(|_| Vector3::zeros());
                 if off_mm > self.max_distance_mm {
@@ -450,18 +445,15 @@ mod tests {
 
     #[test]
     fn a_support_plane_is_used_where_the_scan_has_a_base_on_it_and_a_bad_one_named() {
-        use crate::cloud::plane_table;
-        let table = |normal: Vector3<f64>| {
-            let plane = Plane {
-                normal,
-                offset: 0.0,
-            };
+        use crate::cloud::{Plane, plane_table};
+        let table = |normal: Vector3<f64>, offset: f64| {
+            let plane = Plane { normal, offset };
             Some(Arc::new(plane_table(Some(&plane)).unwrap()))
         };
         // The dome's skin has no flat base: noted, skin and markers alone.
         let mut ctx = RunCtx::new("deform", &std::env::temp_dir());
         let mut i = inputs(6.0, 12);
-        i.support = table(Vector3::z());
+        i.support = table(Vector3::z(), 0.0);
         op().run(i, &mut ctx).unwrap();
         assert!(!ctx.metrics().contains_key("support_points"));
         assert!(
@@ -476,7 +468,7 @@ mod tests {
         let mut i = inputs(6.0, 12);
         let (scan, normals) = dome_with_base(4.0);
         i.target = cloud(&scan, Some(&normals), "mri_lps");
-        i.support = table(Vector3::z());
+        i.support = table(Vector3::z(), 0.0);
         op().run(i, &mut ctx).unwrap();
         let m = ctx.metrics();
         assert!(m["support_points"] > 100.0, "{m:?}");
@@ -485,11 +477,7 @@ mod tests {
         let mut ctx = RunCtx::new("deform", &std::env::temp_dir());
         let mut i = inputs(6.0, 12);
         i.target = cloud(&scan, Some(&normals), "mri_lps");
-        let far = Plane {
-            normal: Vector3::z(),
-            offset: -40.0,
-        };
-        i.support = Some(Arc::new(plane_table(Some(&far)).unwrap()));
+        i.support = table(Vector3::z(), -40.0);
         op().run(i, &mut ctx).unwrap();
         assert!(!ctx.metrics().contains_key("support_points"));
         assert!(

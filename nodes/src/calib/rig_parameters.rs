@@ -120,6 +120,42 @@ pub fn covariance_entries(c: &Matrix3<f64>) -> [f64; 6] {
     ]
 }
 
+/// The covariance (mm^2) of each of `ids` from a table with an `id` column
+/// and [`COVARIANCE_COLUMNS`] (as `stereo.hsv_markers` writes), in `ids`'
+/// order; an error naming a missing column or id.
+pub fn covariances_for_ids(table: &Table, ids: &[u32]) -> Result<Vec<Matrix3<f64>>, String> {
+    let column = |name: &str| {
+        table
+            .column(name)
+            .ok_or_else(|| format!("no column `{name}`"))
+    };
+    let id_column = column("id")?;
+    let entries: Vec<Vec<f64>> = COVARIANCE_COLUMNS
+        .iter()
+        .map(|c| column(c))
+        .collect::<Result<_, _>>()?;
+    ids.iter()
+        .map(|&id| {
+            let r = id_column
+                .iter()
+                .position(|&x| x == id as f64)
+                .ok_or_else(|| format!("no row for marker {id}"))?;
+            let e = |k: usize| entries[k][r];
+            Ok(Matrix3::new(
+                e(0),
+                e(1),
+                e(2), //
+                e(1),
+                e(3),
+                e(4), //
+                e(2),
+                e(4),
+                e(5),
+            ))
+        })
+        .collect()
+}
+
 /// `leading` columns, then [`COVARIANCE_COLUMNS`].
 pub fn columns_with_covariance(leading: &[&str]) -> Vec<String> {
     leading

@@ -297,12 +297,43 @@ pub struct Anchors {
     /// MRI, a few mm deeper). Point-to-plane only; point-to-point fits
     /// landmarks in full.
     pub normals: Option<Vec<Vector3<f64>>>,
+    /// Each landmark pair's weight matrix (target frame), relative: the
+    /// inverse of its residual's covariance, scaled as
+    /// [`relative_information`] does, or `None` (every direction alike).
+    /// Given, a landmark pins each direction by how well it is measured
+    /// there (a stereo marker's depth is about ten times less certain than
+    /// its position across the line of sight), and `normals` is not used.
+    /// Point-to-plane only.
+    pub information: Option<Vec<Matrix3<f64>>>,
+}
+
+/// Relative weight matrices of landmark pairs whose residuals have the
+/// covariances `covariances` (mm^2): their inverses, scaled so their mean
+/// trace is 3, which leaves the landmarks' total weight what three unit
+/// directions each give ([`Anchors::each`] stays the weight of one
+/// direction on average). `None` when a covariance is not positive definite.
+pub fn relative_information(covariances: &[Matrix3<f64>]) -> Option<Vec<Matrix3<f64>>> {
+    let inverses: Vec<Matrix3<f64>> = covariances
+        .iter()
+        .map(|c| c.cholesky().map(|l| l.inverse()))
+        .collect::<Option<_>>()?;
+    let mean_trace = inverses.iter().map(|m| m.trace()).sum::<f64>() / inverses.len() as f64;
+    (mean_trace.is_finite() && mean_trace > 0.0)
+        .then(|| inverses.iter().map(|m| m * (3.0 / mean_trace)).collect())
 }
 
 impl Anchors {
-    /// The directions landmark `k`'s residual is fitted along: the three
-    /// axes, or the two across its normal.
+    /// The directions landmark `k`'s residual is fitted along, each scaled
+    /// by the square root of its weight: the three axes, the two across its
+    /// normal, or the eigenvectors of its weight matrix.
     pub(crate) fn directions(&self, k: usize) -> Vec<Vector3<f64>> {
+        if let Some(w) = self.information.as_ref().and_then(|w| w.get(k)) {
+            let e = w.symmetric_eigen();
+            return (0..3)
+                .filter(|&j| e.eigenvalues[j] > 0.0)
+                .map(|j| e.eigenvectors.column(j) * e.eigenvalues[j].sqrt())
+                .collect();
+        }
         match self.normals.as_ref().and_then(|n| n.get(k)) {
             Some(n) => {
                 let a = if n.x.abs() < 0.9 {
@@ -598,6 +629,39 @@ pub fn icp_anchored(
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn relative_information_inverts_and_keeps_the_mean_weight() {
+        let covariances = [
+            Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, 4.0)),
+            Matrix3::from_diagonal(&Vector3::new(2.0, 2.0, 2.0)),
+        ];
+        let w = relative_information(&covariances).unwrap();
+        // Inverses diag(1, 1, 0.25) and diag(0.5, 0.5, 0.5), mean trace
+        // 1.875, so scaled by 3 / 1.875 = 1.6.
+        assert!((w[0] - Matrix3::from_diagonal(&Vector3::new(1.6, 1.6, 0.4))).norm() < 1e-12);
+        assert!((w[1] - Matrix3::from_diagonal(&Vector3::new(0.8, 0.8, 0.8))).norm() < 1e-12);
+        // A landmark's rows rebuild its weight matrix.
+        let turned = UnitQuaternion::from_euler_angles(0.3, -0.2, 0.7).to_rotation_matrix();
+        let weight = turned * w[0] * turned.transpose();
+        let anchors = Anchors {
+            source: vec![Point3::origin()],
+            target: vec![Point3::origin()],
+            weight: 1.0,
+            normals: Some(vec![Vector3::z()]),
+            information: Some(vec![weight]),
+        };
+        let rebuilt = anchors
+            .directions(0)
+            .iter()
+            .fold(Matrix3::zeros(), |m, e| m + e * e.transpose());
+        assert!((rebuilt - weight).norm() < 1e-12, "{rebuilt}");
+        assert!(
+            relative_information(&[Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, 1.0))])
+                .is_none()
+        );
+    }
+
     use super::*;
     use crate::cloud::{bumpy_ellipsoid, estimate_normals};
 
@@ -730,6 +794,7 @@ mod tests {
             target: landmarks.to_vec(),
             weight: 1.0,
             normals: None,
+            information: None,
         };
         let params = IcpParams {
             method: IcpMethod::PointToPlane,
@@ -814,6 +879,7 @@ mod tests {
                 target: on_skin.to_vec(),
                 weight: 1.0,
                 normals: normals_given.then(|| surface_normals.clone()),
+                information: None,
             };
             let init = Isometry3::identity();
             let t = icp_anchored(

@@ -4,12 +4,14 @@
 //! mm off where the other views put it. Such a sighting is dropped (and
 //! reported), not averaged in.
 
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 
 /// One marker seen in several views.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MergedMarker {
-    /// Mean of its sightings that agree, in the frame of the poses, mm.
+    /// Mean of its sightings that agree, in the frame of the poses, mm:
+    /// weighted by their inverse covariances where every one has a
+    /// covariance ([`merge_markers_weighted`]).
     pub position: Point3<f64>,
     /// Views whose sightings agree.
     pub views: usize,
@@ -50,6 +52,21 @@ pub struct MergeParams {
 /// depends on nothing but the input.
 pub fn merge_markers(
     sets: &[ViewMarkers],
+    params: &MergeParams,
+) -> (Vec<MergedMarker>, Vec<DroppedSighting>) {
+    merge_markers_weighted(sets, &[], params)
+}
+
+/// [`merge_markers`], each marker's position then the mean of its sightings
+/// weighted by their inverse covariances when every one of them has a
+/// covariance (`covariances[set]`: one per marker of that set, in its
+/// view's frame, mm^2; missing or empty: none). A stereo sighting is about
+/// ten times less certain along its line of sight than across it, so views
+/// that see a marker from different sides fix each other's depth. Which
+/// sightings gather and which go does not change.
+pub fn merge_markers_weighted(
+    sets: &[ViewMarkers],
+    covariances: &[Option<Vec<Matrix3<f64>>>],
     params: &MergeParams,
 ) -> (Vec<MergedMarker>, Vec<DroppedSighting>) {
     // Each gathered marker: its sightings as (set, marker, position).
@@ -111,7 +128,7 @@ pub fn merge_markers(
     let merged = gathered
         .iter()
         .map(|g| {
-            let position = mean(g);
+            let position = weighted_mean(g, sets, covariances).unwrap_or_else(|| mean(g));
             MergedMarker {
                 position,
                 views: g.len(),
@@ -123,6 +140,27 @@ pub fn merge_markers(
         })
         .collect();
     (merged, dropped)
+}
+
+/// The sightings' mean weighted by their inverse covariances (turned into
+/// the poses' frame), or `None` unless every sighting has a positive-definite
+/// one.
+fn weighted_mean(
+    g: &[(usize, usize, Point3<f64>)],
+    sets: &[ViewMarkers],
+    covariances: &[Option<Vec<Matrix3<f64>>>],
+) -> Option<Point3<f64>> {
+    let (mut information, mut weighted) = (Matrix3::zeros(), Vector3::zeros());
+    for &(set, marker, p) in g {
+        let c = covariances.get(set)?.as_ref()?.get(marker)?;
+        let turn = sets[set].1.rotation.to_rotation_matrix();
+        let w = (turn * c * turn.transpose()).try_inverse()?;
+        information += w;
+        weighted += w * p.coords;
+    }
+    information
+        .cholesky()
+        .map(|l| Point3::from(l.solve(&weighted)))
 }
 
 fn mean(g: &[(usize, usize, Point3<f64>)]) -> Point3<f64> {
@@ -225,5 +263,57 @@ mod tests {
         let (merged, dropped) = merge_markers(&[(vec![a, b], id), (vec![a], id)], &PARAMS);
         assert!(dropped.is_empty());
         assert_eq!(merged.iter().map(|m| m.views).collect::<Vec<_>>(), [2, 1]);
+    }
+}
+
+#[cfg(test)]
+mod weighted_tests {
+    use super::*;
+    use nalgebra::UnitQuaternion;
+
+    #[test]
+    fn sightings_from_two_sides_fix_each_others_depth() {
+        // One marker at (10, 20, 500), seen by a view looking along z and by
+        // one turned 90 degrees about y (looking along x): each sighting 1 mm
+        // off along its own line of sight, where it is ten times less
+        // certain than across it.
+        let truth = Point3::new(10.0, 20.0, 500.0);
+        let covariance = Matrix3::from_diagonal(&Vector3::new(0.01, 0.01, 1.0));
+        let front = Isometry3::identity();
+        let side = Isometry3::from_parts(
+            nalgebra::Translation3::new(0.0, 0.0, 0.0),
+            UnitQuaternion::from_euler_angles(0.0, std::f64::consts::FRAC_PI_2, 0.0),
+        );
+        let sighting = |pose: &Isometry3<f64>| pose.inverse() * truth + Vector3::new(0.0, 0.0, 1.0);
+        let sets = vec![
+            (vec![sighting(&front)], front),
+            (vec![sighting(&side)], side),
+        ];
+        let params = MergeParams {
+            merge_mm: 4.0,
+            outlier_mm: 2.5,
+        };
+        let (plain, _) = merge_markers(&sets, &params);
+        let (weighted, _) = merge_markers_weighted(
+            &sets,
+            &[Some(vec![covariance]), Some(vec![covariance])],
+            &params,
+        );
+        assert_eq!((plain.len(), weighted.len()), (1, 1));
+        assert!(
+            (plain[0].position - truth).norm() > 0.7,
+            "the plain mean is off by half of each"
+        );
+        // Each axis: one sighting off by 1 mm at weight 1, the other exact at
+        // weight 100: 1 / 101 mm.
+        let expected = 2f64.sqrt() / 101.0;
+        let off = (weighted[0].position - truth).norm();
+        assert!(
+            (off - expected).abs() < 1e-9,
+            "{off} mm, expected {expected}"
+        );
+        // Without a covariance for one sighting: the plain mean.
+        let (partial, _) = merge_markers_weighted(&sets, &[Some(vec![covariance]), None], &params);
+        assert_eq!(partial[0].position, plain[0].position);
     }
 }

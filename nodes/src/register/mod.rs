@@ -21,8 +21,11 @@ pub use deformable::{
 };
 pub use icp::{
     Anchors, IcpMethod, IcpParams, IcpResult, IcpStep, Kernel, icp, icp_anchored, normals_near,
+    relative_information,
 };
-pub use marker_merge::{DroppedSighting, MergeParams, MergedMarker, ViewMarkers, merge_markers};
+pub use marker_merge::{
+    DroppedSighting, MergeParams, MergedMarker, ViewMarkers, merge_markers, merge_markers_weighted,
+};
 pub use match_markers::{MarkerMatch, match_markers};
 pub use multiview::{
     MarkerAnchoring, Multiview, View, first_view_spread, poses_from_markers, register_views,

@@ -10,10 +10,10 @@
 //! nearly symmetric dome (which weak skin texture or noise otherwise lets
 //! them do: the merged markers then come apart).
 
-use super::icp::{Anchors, IcpParams, icp, icp_anchored};
+use super::icp::{Anchors, IcpParams, icp, icp_anchored, relative_information};
 use super::pose_spread;
 use crate::cloud::Nearest;
-use nalgebra::{Isometry3, Matrix6, Point3, Vector3};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Point3, Vector3};
 
 /// One view: its points and normals in its own (camera) frame.
 #[derive(Debug, Clone)]
@@ -56,6 +56,31 @@ pub struct MarkerAnchoring {
     /// In the adjustment, a sighting farther than this from the median of
     /// the other views' sightings near it (two or more) anchors nothing, mm.
     pub outlier_mm: f64,
+    /// Each view's markers' covariances in its own frame (mm^2), one per
+    /// marker in `markers`' order, or `None`. Where both sightings of a pair
+    /// have one, the pair pins each direction by the inverse of their summed
+    /// covariance ([`Anchors::information`]): a stereo marker's depth is far
+    /// less certain than its place across the line of sight, and weighed
+    /// alike it would pull the other views along the first view's depth
+    /// errors. Empty: none given.
+    pub covariances: Vec<Option<Vec<Matrix3<f64>>>>,
+}
+
+impl MarkerAnchoring {
+    /// The covariance of view `view`'s marker `k` in its frame, if given.
+    fn covariance(&self, view: usize, k: usize) -> Option<Matrix3<f64>> {
+        self.covariances.get(view)?.as_ref()?.get(k).copied()
+    }
+
+    /// The anchors' relative weight matrices from each pair's summed
+    /// covariance (target frame), or `None` unless every pair has one.
+    fn information(
+        &self,
+        pairs: impl Iterator<Item = Option<Matrix3<f64>>>,
+    ) -> Option<Vec<Matrix3<f64>>> {
+        let summed: Option<Vec<Matrix3<f64>>> = pairs.collect();
+        relative_information(&summed?)
+    }
 }
 
 /// The markers view `j` shares with view `i`, matched by their distances to
@@ -78,11 +103,17 @@ fn shared_markers(
     let centre = mj.iter().map(|p| p.coords).sum::<Vector3<f64>>() / mj.len() as f64;
     let disagreement = (fit * Point3::from(centre) - rough * Point3::from(centre)).norm();
     (m.pairs.len() >= 3 && disagreement < 50.0).then(|| {
+        let turn = fit.rotation.to_rotation_matrix();
+        let information = anchoring.information(m.pairs.iter().map(|&(a, b)| {
+            let (cj, ci) = (anchoring.covariance(j, a)?, anchoring.covariance(i, b)?);
+            Some(turn * cj * turn.transpose() + ci)
+        }));
         let anchors = Anchors {
             source: m.pairs.iter().map(|&(a, _)| mj[a]).collect(),
             target: m.pairs.iter().map(|&(_, b)| mi[b]).collect(),
             weight: anchoring.weight,
             normals: None,
+            information,
         };
         (anchors, fit)
     })
@@ -97,41 +128,54 @@ fn adjustment_anchors(
     poses: &[Isometry3<f64>],
 ) -> Option<Anchors> {
     let own = anchoring.markers.get(i)?;
-    let others: Vec<Point3<f64>> = anchoring
+    // Every other view's sightings in the world, with their view and index.
+    let others: Vec<(Point3<f64>, usize, usize)> = anchoring
         .markers
         .iter()
         .enumerate()
         .filter(|(k, _)| *k != i)
-        .flat_map(|(k, m)| m.iter().map(move |p| poses[k] * p))
+        .flat_map(|(k, m)| m.iter().enumerate().map(move |(n, p)| (poses[k] * p, k, n)))
         .collect();
-    let (mut source, mut target) = (Vec::new(), Vec::new());
-    for p in own {
+    let (mut source, mut target, mut summed) = (Vec::new(), Vec::new(), Vec::new());
+    let world_covariance = |view: usize, k: usize| {
+        let turn = poses[view].rotation.to_rotation_matrix();
+        anchoring
+            .covariance(view, k)
+            .map(|c| turn * c * turn.transpose())
+    };
+    for (n, p) in own.iter().enumerate() {
         let world = poses[i] * p;
-        let near: Vec<&Point3<f64>> = others
+        let near: Vec<&(Point3<f64>, usize, usize)> = others
             .iter()
-            .filter(|q| (*q - world).norm() < anchoring.tolerance_mm)
+            .filter(|q| (q.0 - world).norm() < anchoring.tolerance_mm)
             .collect();
         // A sighting the others (two or more) put elsewhere is off itself
         // (a marker cut by a tool): it must not pull its view.
         if near.len() >= 2
-            && (super::marker_merge::median_point(near.iter().copied()) - world).norm()
+            && (super::marker_merge::median_point(near.iter().map(|q| &q.0)) - world).norm()
                 > anchoring.outlier_mm
         {
             continue;
         }
-        if let Some(q) = near
-            .into_iter()
-            .min_by(|a, b| (*a - world).norm().total_cmp(&(*b - world).norm()))
+        if let Some(&&(q, view, k)) = near
+            .iter()
+            .min_by(|a, b| (a.0 - world).norm().total_cmp(&(b.0 - world).norm()))
         {
             source.push(*p);
-            target.push(*q);
+            target.push(q);
+            summed.push(
+                world_covariance(i, n)
+                    .zip(world_covariance(view, k))
+                    .map(|(a, b)| a + b),
+            );
         }
     }
-    (source.len() >= 3).then_some(Anchors {
+    (source.len() >= 3).then(|| Anchors {
         source,
         target,
         weight: anchoring.weight,
         normals: None,
+        information: anchoring.information(summed.into_iter()),
     })
 }
 
@@ -339,6 +383,7 @@ mod anchor_tests {
             tolerance_mm: 4.0,
             weight: 1.0,
             outlier_mm: 2.5,
+            covariances: Vec::new(),
         };
         let poses = vec![Isometry3::identity(); 3];
         let view0 = adjustment_anchors(&anchoring, 0, &poses).unwrap();
@@ -467,6 +512,101 @@ mod chain_tests {
             poses_from_markers(&lonely, 1.0)
                 .unwrap_err()
                 .contains("views 0 and 1")
+        );
+    }
+}
+
+#[cfg(test)]
+mod weighting_tests {
+    use super::*;
+    use crate::register::{IcpMethod, Kernel};
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+
+    #[test]
+    fn markers_weighed_by_their_covariances_do_not_drag_the_views_along_their_depth_errors() {
+        // Two views of one bowl, both exact and at the truth; six markers
+        // on it, each sighting off by stereo-like noise: 0.3 mm along the
+        // line of sight (z), 0.03 mm across. View 1 is adjusted onto view 0:
+        // weighed alike, view 0's markers' depth errors tilt it; weighed by
+        // their covariances, the surface holds the depth and they the rest.
+        let (points, normals) = super::super::pose_spread::uneven_bowl(50, 1.6);
+        let on_bowl =
+            |x: f64, y: f64| Point3::new(x, y, (x * x + 0.6 * y * y) / 120.0 + 0.0002 * x * y * y);
+        let truth: Vec<Point3<f64>> = [
+            (-25.0, -20.0),
+            (20.0, -25.0),
+            (30.0, 10.0),
+            (-5.0, 28.0),
+            (-30.0, 15.0),
+            (5.0, 0.0),
+        ]
+        .iter()
+        .map(|&(x, y)| on_bowl(x, y))
+        .collect();
+        let covariance = Matrix3::from_diagonal(&Vector3::new(
+            0.03f64.powi(2),
+            0.03f64.powi(2),
+            0.3f64.powi(2),
+        ));
+        let (across, along) = (
+            Normal::new(0.0, 0.03).unwrap(),
+            Normal::new(0.0, 0.3).unwrap(),
+        );
+        let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+        let p = IcpParams {
+            method: IcpMethod::PointToPlane,
+            max_distance_mm: 5.0,
+            trim_ratio: 1.0,
+            kernel: Kernel::None,
+            max_iterations: 30,
+            tolerance: 1e-9,
+            voxel_sizes_mm: vec![],
+        };
+        let views = vec![
+            View {
+                points: points.clone(),
+                normals: normals.clone(),
+            },
+            View { points, normals },
+        ];
+        let rough = vec![Isometry3::identity(); 2];
+        let centre = on_bowl(0.0, 0.0);
+        let draws = 30;
+        let (mut alike, mut weighed) = (0.0, 0.0);
+        for _ in 0..draws {
+            let mut sighting = || -> Vec<Point3<f64>> {
+                truth
+                    .iter()
+                    .map(|t| {
+                        t + Vector3::new(
+                            across.sample(&mut rng),
+                            across.sample(&mut rng),
+                            along.sample(&mut rng),
+                        )
+                    })
+                    .collect()
+            };
+            let markers = vec![sighting(), sighting()];
+            for (covariances, sum) in [
+                (Vec::new(), &mut alike),
+                (vec![Some(vec![covariance; 6]); 2], &mut weighed),
+            ] {
+                let anchoring = MarkerAnchoring {
+                    markers: markers.clone(),
+                    tolerance_mm: 4.0,
+                    weight: 1.0,
+                    outlier_mm: 2.5,
+                    covariances,
+                };
+                let m = register_views(&views, &rough, &p, 1, Some(&anchoring)).unwrap();
+                *sum += (m.poses[1] * centre - centre).norm_squared() / draws as f64;
+            }
+        }
+        let (alike, weighed) = (alike.sqrt(), weighed.sqrt());
+        assert!(
+            weighed < 0.5 * alike,
+            "view 1's error at the bowl's centre: weighed alike {alike:.4} mm, by covariance {weighed:.4} mm"
         );
     }
 }

@@ -225,6 +225,7 @@ impl RunOp for Icp {
                 }
                 _ => None,
             },
+            information: None,
         });
         let r = icp_anchored(&sp, &tp, tn.as_deref(), &tree, &init, &p, anchors.as_ref())
             .map_err(OpError::invalid)?;

@@ -1,5 +1,6 @@
 //! `register.multiview`: several camera clouds into one.
 
+use crate::calib::covariances_for_ids;
 use crate::cloud::convert::{cloud_normals, cloud_points, make_cloud};
 use crate::cloud::estimate_normals;
 use crate::register::convert::{
@@ -7,7 +8,7 @@ use crate::register::convert::{
 };
 use crate::register::{
     IcpMethod, IcpParams, Kernel, MarkerAnchoring, MergeParams, View, ViewMarkers,
-    carried_pose_covariance, first_view_spread, mapped_point_covariance, merge_markers,
+    carried_pose_covariance, first_view_spread, mapped_point_covariance, merge_markers_weighted,
     poses_from_markers, register_views,
 };
 use fusegraph_engine::Inputs;
@@ -16,7 +17,7 @@ use fusegraph_engine::typed::declaration::{
 };
 use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Markers, PointCloud, Table, Transform};
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 
 /// Views `register.multiview` accepts.
 pub const MAX_VIEWS: usize = 8;
@@ -26,7 +27,8 @@ pub const MAX_VIEWS: usize = 8;
 // 7: the merged set's frame covariance (`covariance`).
 // 8: skipped (an abandoned experiment ran under it; old caches may hold its results)
 // 9: every block's residuals corrected for its leverage in that covariance.
-#[op(name = "register.multiview", version = 9)]
+// 10: markers weighed by their covariances (`marker_covariance{i}`).
+#[op(name = "register.multiview", version = 10)]
 pub struct Multiview {
     /// ICP: pairs farther apart are ignored
     #[param(default = 8.0, unit = "mm", min = 1e-3)]
@@ -85,10 +87,12 @@ pub struct ViewInputs {
     pub pose: Option<Arc<Transform>>,
     /// Its markers, in its cloud's frame.
     pub markers: Option<Arc<Markers>>,
+    /// Its markers' covariances (`stereo.hsv_markers`' `covariance`).
+    pub marker_covariance: Option<Arc<Table>>,
 }
 
-/// The inputs: [`MAX_VIEWS`] views, each `cloud{i}`, `pose{i}`, `markers{i}`
-/// in that order, the first two clouds required. The ports are computed, so
+/// The inputs: [`MAX_VIEWS`] views, each `cloud{i}`, `pose{i}`, `markers{i}`,
+/// `marker_covariance{i}` in that order, the first two clouds required. The ports are computed, so
 /// this set is written by hand rather than derived.
 pub struct MultiviewInputs {
     /// View `i`'s ports at index `i`, for every `i` below [`MAX_VIEWS`].
@@ -97,7 +101,7 @@ pub struct MultiviewInputs {
 
 impl<'a> InputSet<'a, Inputs> for MultiviewInputs {
     fn port_decls() -> Vec<PortDecl> {
-        let mut decls = Vec::with_capacity(3 * MAX_VIEWS);
+        let mut decls = Vec::with_capacity(4 * MAX_VIEWS);
         for i in 0..MAX_VIEWS {
             decls.push(port(
                 &format!("cloud{i}"),
@@ -119,6 +123,14 @@ impl<'a> InputSet<'a, Inputs> for MultiviewInputs {
                 true,
                 &format!("View {i}'s markers, in its cloud's frame"),
             ));
+            decls.push(port(
+                &format!("marker_covariance{i}"),
+                <Arc<Table> as InputPort<'a, Inputs>>::type_names(),
+                true,
+                &format!(
+                    "View {i}'s markers' covariances (stereo.hsv_markers' `covariance`: `id`, `cov_{{xx,xy,xz,yy,yz,zz}}_mm2`, the cloud's frame): the markers then pin each direction by how well they are measured in it (a stereo marker's depth is about ten times less certain than its place across the line of sight); given for every view with markers or for none"
+                ),
+            ));
         }
         decls
     }
@@ -135,6 +147,7 @@ impl<'a> InputSet<'a, Inputs> for MultiviewInputs {
                     },
                     pose: read_input(source, &format!("pose{i}"))?,
                     markers: read_input(source, &format!("markers{i}"))?,
+                    marker_covariance: read_input(source, &format!("marker_covariance{i}"))?,
                 })
             })
             .collect::<Result<_, PortProblem>>()?;
@@ -181,8 +194,10 @@ impl RunOp for Multiview {
         // Each view's input port and its markers' ids, for notes.
         let (mut ports, mut marker_ids) = (Vec::new(), Vec::new());
         let mut frame = String::new();
+        let mut covariances = Vec::new();
         for (i, view) in inputs.views.into_iter().enumerate() {
             let seen = view.markers;
+            let covariance_table = view.marker_covariance;
             match (view.cloud, view.pose) {
                 (Some(c), pose) => {
                     if let Some(m) = &seen
@@ -193,6 +208,24 @@ impl RunOp for Multiview {
                             m.frame, c.frame
                         )));
                     }
+                    covariances.push(match (&seen, &covariance_table) {
+                        (Some(m), Some(t)) if t.row_count() > 0 => Some(
+                            covariances_for_ids(t, &m.ids)
+                                .map_err(|e| OpError::invalid(format!("marker_covariance{i}: {e}")))?,
+                        ),
+                        (Some(_), Some(_)) => {
+                            ctx.note(format!(
+                                "marker_covariance{i} has no rows (too few markers to measure their noise): every view's markers weigh alike in every direction"
+                            ));
+                            None
+                        }
+                        (None, Some(_)) => {
+                            return Err(OpError::invalid(format!(
+                                "marker_covariance{i} without markers{i}"
+                            )));
+                        }
+                        (_, None) => None,
+                    });
                     ports.push(i);
                     marker_ids.push(seen.as_ref().map(|m| m.ids.to_vec()).unwrap_or_default());
                     markers.push(seen.map(|m| marker_points(&m)));
@@ -215,10 +248,10 @@ impl RunOp for Multiview {
                     views.push(View { points, normals });
                     rough.push(pose.map(|t| transform_isometry(&t)));
                 }
-                (None, None) if seen.is_none() => {}
+                (None, None) if seen.is_none() && covariance_table.is_none() => {}
                 _ => {
                     return Err(OpError::invalid(format!(
-                        "view {i}: pose{i} or markers{i} without cloud{i}"
+                        "view {i}: pose{i}, markers{i} or marker_covariance{i} without cloud{i}"
                     )));
                 }
             }
@@ -246,6 +279,25 @@ impl RunOp for Multiview {
             tolerance: self.tolerance,
             voxel_sizes_mm: self.voxel_sizes_mm.clone(),
         };
+        // Weights from covariances only where every view with markers has
+        // them: a view weighed otherwise would pull harder or softer than
+        // its noise says.
+        let with_markers = || {
+            markers
+                .iter()
+                .zip(&covariances)
+                .filter(|(m, _)| m.is_some())
+        };
+        let covariances = if with_markers().all(|(_, c)| c.is_some()) {
+            covariances
+        } else {
+            if with_markers().any(|(_, c)| c.is_some()) {
+                ctx.note(
+                    "some views' markers have covariances and some not: every marker weighs alike in every direction",
+                );
+            }
+            Vec::new()
+        };
         let anchoring = (self.marker_weight > 0.0).then(|| MarkerAnchoring {
             markers: markers
                 .iter()
@@ -254,6 +306,7 @@ impl RunOp for Multiview {
             tolerance_mm: self.merge_mm,
             weight: self.marker_weight,
             outlier_mm: self.outlier_mm,
+            covariances: covariances.clone(),
         });
         let mut m = register_views(&views, &rough, &p, self.rounds, anchoring.as_ref())
             .map_err(OpError::invalid)?;
@@ -313,7 +366,11 @@ impl RunOp for Multiview {
             merge_mm: self.merge_mm,
             outlier_mm: self.outlier_mm,
         };
-        let (merged, dropped) = merge_markers(&sightings, &params);
+        let sighting_covariances: Vec<Option<Vec<Matrix3<f64>>>> = seen_in
+            .iter()
+            .map(|&v| covariances.get(v).cloned().flatten())
+            .collect();
+        let (merged, dropped) = merge_markers_weighted(&sightings, &sighting_covariances, &params);
         for d in &dropped {
             ctx.note(format!(
                 "view {}: marker {} dropped, {:.1} mm from where the other views put it \
@@ -380,13 +437,20 @@ mod tests {
     fn ports_are_read_by_view_and_the_first_two_clouds_are_required() {
         let decls = <MultiviewInputs as InputSet<'_, Inputs>>::port_decls();
         let names: Vec<&str> = decls.iter().map(|d| d.name.as_str()).collect();
-        assert_eq!(names.len(), 3 * MAX_VIEWS);
+        assert_eq!(names.len(), 4 * MAX_VIEWS);
         assert_eq!(
             names[..6],
-            ["cloud0", "pose0", "markers0", "cloud1", "pose1", "markers1"]
+            [
+                "cloud0",
+                "pose0",
+                "markers0",
+                "marker_covariance0",
+                "cloud1",
+                "pose1"
+            ]
         );
-        assert_eq!(names[3 * MAX_VIEWS - 1], "markers7");
-        assert!(!decls[0].optional && !decls[3].optional && decls[6].optional);
+        assert_eq!(names[4 * MAX_VIEWS - 1], "marker_covariance7");
+        assert!(!decls[0].optional && !decls[4].optional && decls[8].optional);
 
         let mut inputs = Inputs::default();
         inputs.0.insert("cloud0".into(), cloud("camera_a"));
@@ -424,6 +488,7 @@ mod tests {
                 })
             }),
             markers: None,
+            marker_covariance: None,
         };
         let run = |views: Vec<ViewInputs>| {
             let mut ctx = RunCtx::new("views", &std::env::temp_dir());
@@ -438,7 +503,7 @@ mod tests {
             view(None, true),
         ]);
         assert!(
-            e.contains("view 2: pose2 or markers2 without cloud2"),
+            e.contains("view 2: pose2, markers2 or marker_covariance2 without cloud2"),
             "{e}"
         );
         let e = run(vec![view(Some("a"), true), view(Some("b"), false)]);
@@ -449,6 +514,45 @@ mod tests {
         let e = run(vec![view(Some("a"), false), view(Some("b"), false)]);
         assert!(
             e.contains("without poses, connect every view's markers"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_marker_covariance_table_that_does_not_fit_its_markers_is_named() {
+        let view = |frame: &str, ids: &[u32], table: Option<Table>| ViewInputs {
+            cloud: Some(Arc::new(
+                PointCloud::new(vec![0.0; 3], None, None, frame).unwrap(),
+            )),
+            pose: None,
+            markers: Some(Arc::new(
+                Markers::new(vec![0.0; 3 * ids.len()], ids.to_vec(), frame).unwrap(),
+            )),
+            marker_covariance: table.map(Arc::new),
+        };
+        let table = |ids: &[u32]| {
+            let rows: Vec<f64> = ids
+                .iter()
+                .flat_map(|&id| [id as f64, 1.0, 0.0, 0.0, 1.0, 0.0, 1.0])
+                .collect();
+            Table::new(crate::calib::columns_with_covariance(&["id"]), rows).unwrap()
+        };
+        let run = |views: Vec<ViewInputs>| {
+            let mut ctx = RunCtx::new("views", &std::env::temp_dir());
+            op().run(MultiviewInputs { views }, &mut ctx)
+                .map(|_| ())
+                .unwrap_err()
+                .to_string()
+        };
+        let e = run(vec![
+            view("a", &[0, 1, 2], Some(table(&[0, 1, 2]))),
+            view("a", &[1, 3], Some(table(&[1, 2]))),
+        ]);
+        assert!(e.contains("marker_covariance1: no row for marker 3"), "{e}");
+        let wrong = Table::new(vec!["id".into(), "cov_xx_mm2".into()], vec![0.0, 1.0]).unwrap();
+        let e = run(vec![view("a", &[0], Some(wrong)), view("a", &[0], None)]);
+        assert!(
+            e.contains("marker_covariance0: no column `cov_xy_mm2`"),
             "{e}"
         );
     }

@@ -893,7 +893,7 @@ fn write_three_view_fusion(dir: &Path) {
     let three_views: String = full
         .lines()
         .filter(|l| {
-            !["cloud", "pose", "markers"]
+            !["cloud", "pose", "markers", "marker_covariance"]
                 .iter()
                 .any(|p| (3..6).any(|v| l.starts_with(&format!("in.{p}{v} = "))))
         })

@@ -201,6 +201,7 @@ fn merge_six_views(depth_noise_mm: f64, anchored: bool) -> (f64, f64) {
         tolerance_mm: 4.0,
         weight: 1.0,
         outlier_mm: 2.5,
+        covariances: Vec::new(),
     };
     let m = register_views(&views, &rough, &params, 2, anchored.then_some(&anchoring)).unwrap();
     // Every view lands where the truth has it (view 0 is the anchor): compare

@@ -364,6 +364,20 @@ pub fn poses_from_markers(
     Ok(poses)
 }
 
+/// Point-to-plane settings that converge fully on the tests' bowls.
+#[cfg(test)]
+fn bowl_icp_params() -> IcpParams {
+    IcpParams {
+        method: super::icp::IcpMethod::PointToPlane,
+        max_distance_mm: 5.0,
+        trim_ratio: 1.0,
+        kernel: super::icp::Kernel::None,
+        max_iterations: 30,
+        tolerance: 1e-9,
+        voxel_sizes_mm: vec![],
+    }
+}
+
 #[cfg(test)]
 mod anchor_tests {
     use super::*;
@@ -398,7 +412,6 @@ mod anchor_tests {
 #[cfg(test)]
 mod spread_tests {
     use super::*;
-    use crate::register::{IcpMethod, Kernel};
     use nalgebra::Vector6;
     use rand::SeedableRng;
     use rand_distr::{Distribution, Normal};
@@ -416,15 +429,7 @@ mod spread_tests {
         // 1 onto view 0's data, so its pose scatters over draws as view 0's
         // spread predicts.
         let (points, normals) = super::super::pose_spread::uneven_bowl(60, 1.5);
-        let p = IcpParams {
-            method: IcpMethod::PointToPlane,
-            max_distance_mm: 5.0,
-            trim_ratio: 1.0,
-            kernel: Kernel::None,
-            max_iterations: 30,
-            tolerance: 1e-9,
-            voxel_sizes_mm: vec![],
-        };
+        let p = bowl_icp_params();
         let noise = Normal::new(0.0, 0.3).unwrap();
         let mut rng = rand::rngs::StdRng::seed_from_u64(7);
         let rough = vec![Isometry3::identity(); 2];
@@ -519,7 +524,6 @@ mod chain_tests {
 #[cfg(test)]
 mod weighting_tests {
     use super::*;
-    use crate::register::{IcpMethod, Kernel};
     use rand::SeedableRng;
     use rand_distr::{Distribution, Normal};
 
@@ -554,15 +558,7 @@ mod weighting_tests {
             Normal::new(0.0, 0.3).unwrap(),
         );
         let mut rng = rand::rngs::StdRng::seed_from_u64(11);
-        let p = IcpParams {
-            method: IcpMethod::PointToPlane,
-            max_distance_mm: 5.0,
-            trim_ratio: 1.0,
-            kernel: Kernel::None,
-            max_iterations: 30,
-            tolerance: 1e-9,
-            voxel_sizes_mm: vec![],
-        };
+        let p = bowl_icp_params();
         let views = vec![
             View {
                 points: points.clone(),

@@ -433,6 +433,15 @@ mod tests {
         fusegraph_engine::typed::declared_defaults().expect("every parameter has a default")
     }
 
+    /// The error the op refuses `views` with.
+    fn run(views: Vec<ViewInputs>) -> String {
+        let mut ctx = RunCtx::new("views", &std::env::temp_dir());
+        op().run(MultiviewInputs { views }, &mut ctx)
+            .map(|_| ())
+            .unwrap_err()
+            .to_string()
+    }
+
     #[test]
     fn ports_are_read_by_view_and_the_first_two_clouds_are_required() {
         let decls = <MultiviewInputs as InputSet<'_, Inputs>>::port_decls();
@@ -490,13 +499,6 @@ mod tests {
             markers: None,
             marker_covariance: None,
         };
-        let run = |views: Vec<ViewInputs>| {
-            let mut ctx = RunCtx::new("views", &std::env::temp_dir());
-            op().run(MultiviewInputs { views }, &mut ctx)
-                .map(|_| ())
-                .unwrap_err()
-                .to_string()
-        };
         let e = run(vec![
             view(Some("a"), true),
             view(Some("b"), true),
@@ -536,13 +538,6 @@ mod tests {
                 .flat_map(|&id| [id as f64, 1.0, 0.0, 0.0, 1.0, 0.0, 1.0])
                 .collect();
             Table::new(crate::calib::columns_with_covariance(&["id"]), rows).unwrap()
-        };
-        let run = |views: Vec<ViewInputs>| {
-            let mut ctx = RunCtx::new("views", &std::env::temp_dir());
-            op().run(MultiviewInputs { views }, &mut ctx)
-                .map(|_| ())
-                .unwrap_err()
-                .to_string()
         };
         let e = run(vec![
             view("a", &[0, 1, 2], Some(table(&[0, 1, 2]))),

@@ -629,6 +629,8 @@ pub fn icp_anchored(
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+    use crate::cloud::{bumpy_ellipsoid, estimate_normals};
 
     #[test]
     fn relative_information_inverts_and_keeps_the_mean_weight() {
@@ -661,9 +663,6 @@ mod tests {
                 .is_none()
         );
     }
-
-    use super::*;
-    use crate::cloud::{bumpy_ellipsoid, estimate_normals};
 
     fn surface() -> Vec<Point3<f64>> {
         bumpy_ellipsoid(6000, 0.5)

@@ -32,8 +32,9 @@ pub use normal_equations::{BlockNormal, DampedSystem, DenseNormal};
 pub use rectify::{StereoRectification, rectify, remap};
 pub use rig_parameters::{
     COVARIANCE_COLUMNS, INTRINSIC_NAMES, POSE_NAMES, ParameterCovariance, RigModel,
-    columns_with_covariance, covariance_entries, covariances_for_ids, disparity_offset_rigs,
-    parameter_names, perturbed_rigs, triangulated_covariance, triangulation_shifts,
+    columns_with_covariance, covariance_entries, covariance_from_entries, covariances_for_ids,
+    disparity_offset_rigs, parameter_names, perturbed_rigs, triangulated_covariance,
+    triangulation_shifts,
 };
 pub use stereo::{RigSpread, StereoCalibration, calibrate_stereo};
 pub use subpixel::{refine_corner, window_for_square};

@@ -120,6 +120,12 @@ pub fn covariance_entries(c: &Matrix3<f64>) -> [f64; 6] {
     ]
 }
 
+/// The symmetric 3 x 3 matrix of an upper triangle in
+/// [`COVARIANCE_COLUMNS`]' order (the inverse of [`covariance_entries`]).
+pub fn covariance_from_entries(e: [f64; 6]) -> Matrix3<f64> {
+    Matrix3::new(e[0], e[1], e[2], e[1], e[3], e[4], e[2], e[4], e[5])
+}
+
 /// The covariance (mm^2) of each of `ids` from a table with an `id` column
 /// and [`COVARIANCE_COLUMNS`] (as `stereo.hsv_markers` writes), in `ids`'
 /// order; an error naming a missing column or id.
@@ -140,18 +146,9 @@ pub fn covariances_for_ids(table: &Table, ids: &[u32]) -> Result<Vec<Matrix3<f64
                 .iter()
                 .position(|&x| x == id as f64)
                 .ok_or_else(|| format!("no row for marker {id}"))?;
-            let e = |k: usize| entries[k][r];
-            Ok(Matrix3::new(
-                e(0),
-                e(1),
-                e(2), //
-                e(1),
-                e(3),
-                e(4), //
-                e(2),
-                e(4),
-                e(5),
-            ))
+            Ok(covariance_from_entries(std::array::from_fn(|k| {
+                entries[k][r]
+            })))
         })
         .collect()
 }
@@ -356,6 +353,25 @@ pub fn disparity_offset_rigs(rig: &RigModel, sd_px: f64) -> (RigModel, RigModel)
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn marker_covariances_are_read_back_by_id_from_their_table() {
+        let a = Matrix3::new(4.0, 0.5, -0.2, 0.5, 1.0, 0.3, -0.2, 0.3, 9.0);
+        let b = Matrix3::from_diagonal(&Vector3::new(0.01, 0.02, 0.5));
+        let rows: Vec<f64> = [(7.0, a), (2.0, b)]
+            .iter()
+            .flat_map(|(id, c)| std::iter::once(*id).chain(covariance_entries(c)))
+            .collect();
+        let table = Table::new(columns_with_covariance(&["id"]), rows).unwrap();
+        // In the order asked, not the table's.
+        assert_eq!(covariances_for_ids(&table, &[2, 7]).unwrap(), vec![b, a]);
+        assert_eq!(covariance_from_entries(covariance_entries(&a)), a);
+        assert!(
+            covariances_for_ids(&table, &[3])
+                .unwrap_err()
+                .contains("marker 3")
+        );
+    }
 
     fn camera() -> CameraModel {
         CameraModel {

@@ -71,16 +71,6 @@ impl MarkerAnchoring {
     fn covariance(&self, view: usize, k: usize) -> Option<Matrix3<f64>> {
         self.covariances.get(view)?.as_ref()?.get(k).copied()
     }
-
-    /// The anchors' relative weight matrices from each pair's summed
-    /// covariance (target frame), or `None` unless every pair has one.
-    fn information(
-        &self,
-        pairs: impl Iterator<Item = Option<Matrix3<f64>>>,
-    ) -> Option<Vec<Matrix3<f64>>> {
-        let summed: Option<Vec<Matrix3<f64>>> = pairs.collect();
-        relative_information(&summed?)
-    }
 }
 
 /// The markers view `j` shares with view `i`, matched by their distances to
@@ -104,16 +94,20 @@ fn shared_markers(
     let disagreement = (fit * Point3::from(centre) - rough * Point3::from(centre)).norm();
     (m.pairs.len() >= 3 && disagreement < 50.0).then(|| {
         let turn = fit.rotation.to_rotation_matrix();
-        let information = anchoring.information(m.pairs.iter().map(|&(a, b)| {
-            let (cj, ci) = (anchoring.covariance(j, a)?, anchoring.covariance(i, b)?);
-            Some(turn * cj * turn.transpose() + ci)
-        }));
+        let summed: Option<Vec<Matrix3<f64>>> = m
+            .pairs
+            .iter()
+            .map(|&(a, b)| {
+                let (cj, ci) = (anchoring.covariance(j, a)?, anchoring.covariance(i, b)?);
+                Some(turn * cj * turn.transpose() + ci)
+            })
+            .collect();
         let anchors = Anchors {
             source: m.pairs.iter().map(|&(a, _)| mj[a]).collect(),
             target: m.pairs.iter().map(|&(_, b)| mi[b]).collect(),
             weight: anchoring.weight,
             normals: None,
-            information,
+            information: summed.and_then(|c| relative_information(&c)),
         };
         (anchors, fit)
     })
@@ -175,7 +169,10 @@ fn adjustment_anchors(
         target,
         weight: anchoring.weight,
         normals: None,
-        information: anchoring.information(summed.into_iter()),
+        information: summed
+            .into_iter()
+            .collect::<Option<Vec<_>>>()
+            .and_then(|c| relative_information(&c)),
     })
 }
 

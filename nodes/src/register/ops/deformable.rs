@@ -250,7 +250,9 @@ impl Deformable {
                 let off_mm = support.residual_mm(|_| Vector3::zeros());
                 if off_mm > self.max_distance_mm {
                     ctx.note(format!(
-                        "the scan's flat base lies {off_mm:.1} mm RMS from the support plane after                          the rigid fit, over max_distance_mm = {}: not the plane it rests on, so                          it is not used",
+                        "the scan's flat base lies {off_mm:.1} mm RMS from the support plane after \
+                         the rigid fit, over max_distance_mm = {}: not the plane it rests on, so \
+                         it is not used",
                         self.max_distance_mm
                     ));
                     return Ok(None);
@@ -483,7 +485,7 @@ mod tests {
         assert!(
             ctx.notes()
                 .iter()
-                .any(|n| n.contains("40.0 mm RMS from the support plane")),
+                .any(|n| n.contains("40.0 mm RMS from the support plane after the rigid fit, over")),
             "{:?}",
             ctx.notes()
         );

@@ -15,7 +15,8 @@ errors and the predicted frame shift. Standard library only.
         --set phantom.conditions=lab --set phantom.read_noise_dn=6
 
 (About 10 s a seed on 2 cores; `--fusegraph` names the binary, default
-target/release/fusegraph.)
+target/release/fusegraph; `--estimated-rig` keeps the calibrated rig, so
+the calibration's error joins the frame error.)
 """
 
 import argparse
@@ -53,14 +54,16 @@ file = "true_pose_{view}"
 """
 
 
-def true_rig_graph(fusion: str) -> str:
+def true_rig_graph(fusion: str, true_rig: bool = True) -> str:
     """graphs/fusion.toml with every rig input but eval_calibration's taken
-    from the phantom's true rig, and the poses written."""
+    from the phantom's true rig (unless `true_rig` is false), and the poses
+    written."""
     lines, table = [], ""
     for line in fusion.splitlines():
         if line.startswith("["):
             table = line.strip()
-        if line.strip() == 'in.rig = "stereo.rig"' and table != "[node.eval_calibration]":
+        if (true_rig and line.strip() == 'in.rig = "stereo.rig"'
+                and table != "[node.eval_calibration]"):
             line = 'in.rig = "truerig.rig"'
         lines.append(line)
     return "\n".join(lines) + "\n" + EXTRA_NODES
@@ -124,10 +127,14 @@ def main() -> None:
     ap.add_argument("--out", required=True, type=Path, help="a folder for the runs")
     ap.add_argument("--set", action="append", default=[], help="an override, as fusegraph run --set")
     ap.add_argument("--fusegraph", default=str(ROOT / "target/release/fusegraph"))
+    ap.add_argument("--estimated-rig", action="store_true",
+                    help="triangulate with the calibrated rig, as the main job does: the "
+                         "calibration's error joins the frame error")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     graph = args.out / "fusion_true_rig.toml"
-    graph.write_text(true_rig_graph((ROOT / "graphs/fusion.toml").read_text()))
+    graph.write_text(true_rig_graph((ROOT / "graphs/fusion.toml").read_text(),
+                                    true_rig=not args.estimated_rig))
     rows = []
     for seed in seeds_of(args.seeds):
         folder = args.out / str(seed)

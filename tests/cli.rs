@@ -814,6 +814,10 @@ fn main_job_locates_the_lesions_from_images_alone() {
     let f = |k: &str| m[k].as_f64().unwrap_or_else(|| panic!("no metric {k}"));
     assert_eq!(f("merge.views"), 6.0, "{m}");
     assert_eq!(f("merge.markers"), 12.0, "{m}");
+    // The merged set's frame error from the markers' noise: a tenth of a
+    // millimetre or so on the ideal phantom, not the fallback.
+    assert_eq!(f("merge.frame_from_markers"), 1.0, "{m}");
+    assert!((0.02..0.5).contains(&f("merge.frame_shift_sd_mm")), "{m}");
     assert_eq!(f("eval_correspondences.wrong"), 0.0, "{m}");
     assert!(f("eval_correspondences.right") >= 10.0, "{m}");
     // RMSE over the whole 10 mm overlap, and of the inliers.

@@ -33,8 +33,8 @@ pub use rectify::{StereoRectification, rectify, remap};
 pub use rig_parameters::{
     COVARIANCE_COLUMNS, INTRINSIC_NAMES, POSE_NAMES, ParameterCovariance, RigModel,
     columns_with_covariance, covariance_entries, covariance_from_entries, covariances_for_ids,
-    disparity_offset_rigs, parameter_names, perturbed_rigs, triangulated_covariance,
-    triangulation_shifts,
+    disparity_offset_rigs, parameter_names, perturbed_rigs, perturbed_rigs_from_table,
+    triangulated_covariance, triangulation_shifts,
 };
 pub use stereo::{RigSpread, StereoCalibration, calibrate_stereo};
 pub use subpixel::{refine_corner, window_for_square};

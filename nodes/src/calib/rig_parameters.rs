@@ -337,6 +337,17 @@ pub fn perturbed_rigs(
         .collect()
 }
 
+/// The rigs moved by + and - each standard-deviation direction of a
+/// parameter covariance table (calib.stereo_calibrate's `covariance`), for
+/// [`triangulation_shifts`].
+pub fn perturbed_rigs_from_table(
+    rig: &RigModel,
+    covariance: &Table,
+) -> Result<Vec<(RigModel, RigModel)>, String> {
+    let c = ParameterCovariance::from_table(covariance)?;
+    perturbed_rigs(rig, &c.names, &c.sigma_directions())
+}
+
 /// The rig moved by + and - a disparity offset of `sd_px` that every match
 /// shares (a dense matcher's bias on a curved, weakly textured surface),
 /// for [`triangulation_shifts`]: the right camera's principal point moved

@@ -323,6 +323,25 @@ pub fn relative_information(covariances: &[Matrix3<f64>]) -> Option<Vec<Matrix3<
 }
 
 impl Anchors {
+    /// Landmark pairs weighed by their residuals' covariances (target
+    /// frame, mm^2; see [`relative_information`]), or alike in every
+    /// direction when `covariances` is `None` or one is not positive
+    /// definite.
+    pub fn weighed_by(
+        source: Vec<Point3<f64>>,
+        target: Vec<Point3<f64>>,
+        weight: f64,
+        covariances: Option<Vec<Matrix3<f64>>>,
+    ) -> Anchors {
+        Anchors {
+            source,
+            target,
+            weight,
+            normals: None,
+            information: covariances.as_deref().and_then(relative_information),
+        }
+    }
+
     /// The directions landmark `k`'s residual is fitted along, each scaled
     /// by the square root of its weight: the three axes, the two across its
     /// normal, or the eigenvectors of its weight matrix.

@@ -17,6 +17,8 @@ pub struct MergedMarker {
     pub views: usize,
     /// Largest distance of such a sighting from the mean, mm.
     pub spread_mm: f64,
+    /// The sightings merged: (set, marker) indices into the input.
+    pub sightings: Vec<(usize, usize)>,
 }
 
 /// A sighting left out of the merge.
@@ -136,6 +138,7 @@ pub fn merge_markers_weighted(
                     .iter()
                     .map(|(_, _, p)| (p - position).norm())
                     .fold(0.0, f64::max),
+                sightings: g.iter().map(|&(set, marker, _)| (set, marker)).collect(),
             }
         })
         .collect();

@@ -5,6 +5,7 @@
 pub(crate) mod convert;
 mod deformable;
 pub(crate) mod figures;
+mod frame_spread;
 mod icp;
 mod marker_merge;
 mod match_markers;
@@ -19,6 +20,7 @@ pub use deformable::{
     DeformParams, Deformation, FIELD_COLUMNS, LandmarkPairs, Lattice, Support, base_on,
     displacement_stats, fit_deformation,
 };
+pub use frame_spread::{Sighting, markers_frame_covariance};
 pub use icp::{
     Anchors, IcpMethod, IcpParams, IcpResult, IcpStep, Kernel, icp, icp_anchored, normals_near,
     relative_information,
@@ -28,7 +30,8 @@ pub use marker_merge::{
 };
 pub use match_markers::{MarkerMatch, match_markers};
 pub use multiview::{
-    MarkerAnchoring, Multiview, View, first_view_spread, poses_from_markers, register_views,
+    MarkerAnchoring, Multiview, View, first_view_spread, markers_frame_spread, poses_from_markers,
+    register_views,
 };
 pub use pose_spread::{
     PoseSpread, ShiftField, ShiftedPoint, carried_pose_covariance, mapped_point_covariance,

@@ -10,8 +10,9 @@
 //! nearly symmetric dome (which weak skin texture or noise otherwise lets
 //! them do: the merged markers then come apart).
 
-use super::icp::{Anchors, IcpParams, icp, icp_anchored, relative_information};
+use super::icp::{Anchors, IcpParams, icp, icp_anchored};
 use super::pose_spread;
+use super::{MergedMarker, Sighting, ViewMarkers, markers_frame_covariance};
 use crate::cloud::Nearest;
 use nalgebra::{Isometry3, Matrix3, Matrix6, Point3, Vector3};
 
@@ -102,13 +103,12 @@ fn shared_markers(
                 Some(turn * cj * turn.transpose() + ci)
             })
             .collect();
-        let anchors = Anchors {
-            source: m.pairs.iter().map(|&(a, _)| mj[a]).collect(),
-            target: m.pairs.iter().map(|&(_, b)| mi[b]).collect(),
-            weight: anchoring.weight,
-            normals: None,
-            information: summed.and_then(|c| relative_information(&c)),
-        };
+        let anchors = Anchors::weighed_by(
+            m.pairs.iter().map(|&(a, _)| mj[a]).collect(),
+            m.pairs.iter().map(|&(_, b)| mi[b]).collect(),
+            anchoring.weight,
+            summed,
+        );
         (anchors, fit)
     })
 }
@@ -164,15 +164,9 @@ fn adjustment_anchors(
             );
         }
     }
-    (source.len() >= 3).then(|| Anchors {
-        source,
-        target,
-        weight: anchoring.weight,
-        normals: None,
-        information: summed
-            .into_iter()
-            .collect::<Option<Vec<_>>>()
-            .and_then(|c| relative_information(&c)),
+    (source.len() >= 3).then(|| {
+        let summed = summed.into_iter().collect::<Option<Vec<_>>>();
+        Anchors::weighed_by(source, target, anchoring.weight, summed)
     })
 }
 
@@ -327,6 +321,55 @@ pub fn first_view_spread(
         None,
     )?;
     Ok(spread.covariance)
+}
+
+/// The covariance of the merged set's frame from the markers' noise alone
+/// (see [`markers_frame_covariance`]): `merged` as
+/// [`merge_markers_weighted`](super::merge_markers_weighted) gave it from
+/// `sets` (each set's markers and its view's pose), the sightings'
+/// covariances `noise` and those the merge weighed them by `weights` (each
+/// set's view frame, mm^2), `views_of_sets[set]` the view a set came from,
+/// of `views`. An error when a sighting has no covariance or the markers do
+/// not pin every view.
+pub fn markers_frame_spread(
+    merged: &[MergedMarker],
+    sets: &[ViewMarkers],
+    noise: &[Option<Vec<Matrix3<f64>>>],
+    weights: &[Option<Vec<Matrix3<f64>>>],
+    views_of_sets: &[usize],
+    views: usize,
+) -> Result<Matrix6<f64>, String> {
+    let markers = merged
+        .iter()
+        .map(|m| {
+            m.sightings
+                .iter()
+                .map(|&(set, marker)| {
+                    let (points, pose) = &sets[set];
+                    let turn = pose.rotation.to_rotation_matrix();
+                    let in_poses_frame = |table: &[Option<Vec<Matrix3<f64>>>]| {
+                        table
+                            .get(set)
+                            .and_then(|c| c.as_ref()?.get(marker))
+                            .map(|c| turn * c * turn.transpose())
+                            .ok_or_else(|| {
+                                format!(
+                                    "view {}: a sighting without a covariance",
+                                    views_of_sets[set]
+                                )
+                            })
+                    };
+                    Ok(Sighting {
+                        view: views_of_sets[set],
+                        position: pose * points[marker],
+                        covariance: in_poses_frame(noise)?,
+                        weighed_as: in_poses_frame(weights)?,
+                    })
+                })
+                .collect::<Result<Vec<_>, String>>()
+        })
+        .collect::<Result<Vec<_>, String>>()?;
+    markers_frame_covariance(&markers, views)
 }
 
 /// Rough view -> first-view poses from the markers alone, for a rig with no

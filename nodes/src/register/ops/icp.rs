@@ -1,7 +1,7 @@
 //! `register.icp`: iterative closest point between two clouds.
 
 use crate::calib::{
-    ParameterCovariance, RigModel, disparity_offset_rigs, perturbed_rigs, triangulation_shifts,
+    RigModel, disparity_offset_rigs, perturbed_rigs_from_table, triangulation_shifts,
 };
 use crate::cloud::Nearest;
 use crate::cloud::convert::{cloud_normals, cloud_points};
@@ -366,9 +366,7 @@ fn source_shift_field(
         );
         Vec::new()
     } else {
-        let covariance = ParameterCovariance::from_table(covariance)
-            .map_err(|e| OpError::invalid(format!("rig_covariance: {e}")))?;
-        perturbed_rigs(&model, &covariance.names, &covariance.sigma_directions())
+        perturbed_rigs_from_table(&model, covariance)
             .map_err(|e| OpError::invalid(format!("rig_covariance: {e}")))?
     };
     let with_bias = bias_sd_px > 0.0;

@@ -1,6 +1,8 @@
 //! `register.multiview`: several camera clouds into one.
 
-use crate::calib::covariances_for_ids;
+use crate::calib::{
+    RigModel, covariances_for_ids, perturbed_rigs_from_table, triangulation_shifts,
+};
 use crate::cloud::convert::{cloud_normals, cloud_points, make_cloud};
 use crate::cloud::estimate_normals;
 use crate::register::convert::{
@@ -8,15 +10,15 @@ use crate::register::convert::{
 };
 use crate::register::{
     IcpMethod, IcpParams, Kernel, MarkerAnchoring, MergeParams, View, ViewMarkers,
-    carried_pose_covariance, first_view_spread, mapped_point_covariance, merge_markers_weighted,
-    poses_from_markers, register_views,
+    carried_pose_covariance, first_view_spread, mapped_point_covariance, markers_frame_spread,
+    merge_markers_weighted, poses_from_markers, register_views,
 };
 use fusegraph_engine::Inputs;
 use fusegraph_engine::typed::declaration::{
     InputPort, InputSet, PortDecl, PortProblem, port, read_input,
 };
 use fusegraph_engine::typed::prelude::*;
-use fusegraph_engine::value::{Markers, PointCloud, Table, Transform};
+use fusegraph_engine::value::{Markers, PointCloud, StereoRig, Table, Transform};
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 
 /// Views `register.multiview` accepts.
@@ -28,7 +30,9 @@ pub const MAX_VIEWS: usize = 8;
 // 8: skipped (an abandoned experiment ran under it; old caches may hold its results)
 // 9: every block's residuals corrected for its leverage in that covariance.
 // 10: markers weighed by their covariances (`marker_covariance{i}`).
-#[op(name = "register.multiview", version = 10)]
+// 11: the frame covariance from the markers' joint adjustment; the rig's
+//     calibration spread joins the markers' weights (`rig`, `rig_covariance`).
+#[op(name = "register.multiview", version = 11)]
 pub struct Multiview {
     /// ICP: pairs farther apart are ignored
     #[param(default = 8.0, unit = "mm", min = 1e-3)]
@@ -87,7 +91,7 @@ pub struct ViewInputs {
     pub pose: Option<Arc<Transform>>,
     /// Its markers, in its cloud's frame.
     pub markers: Option<Arc<Markers>>,
-    /// Its markers' covariances (`stereo.hsv_markers`' `covariance`).
+    /// Its markers' covariances (`stereo.hsv_markers`' `localisation_covariance`).
     pub marker_covariance: Option<Arc<Table>>,
 }
 
@@ -97,6 +101,10 @@ pub struct ViewInputs {
 pub struct MultiviewInputs {
     /// View `i`'s ports at index `i`, for every `i` below [`MAX_VIEWS`].
     pub views: Vec<ViewInputs>,
+    /// The rig that took every view.
+    pub rig: Option<Arc<StereoRig>>,
+    /// Its parameter covariance (`calib.stereo_calibrate`'s `covariance`).
+    pub rig_covariance: Option<Arc<Table>>,
 }
 
 impl<'a> InputSet<'a, Inputs> for MultiviewInputs {
@@ -128,10 +136,22 @@ impl<'a> InputSet<'a, Inputs> for MultiviewInputs {
                 <Arc<Table> as InputPort<'a, Inputs>>::type_names(),
                 true,
                 &format!(
-                    "View {i}'s markers' covariances (stereo.hsv_markers' `covariance`: `id`, `cov_{{xx,xy,xz,yy,yz,zz}}_mm2`, the cloud's frame): the markers then pin each direction by how well they are measured in it (a stereo marker's depth is about ten times less certain than its place across the line of sight); given for every view with markers or for none"
+                    "View {i}'s markers' covariances from their sightings' own noise (stereo.hsv_markers' `localisation_covariance`: `id`, `cov_{{xx,xy,xz,yy,yz,zz}}_mm2`, the cloud's frame): the markers then pin each direction by how well they are measured in it (a stereo marker's depth is about ten times less certain than its place across the line of sight), and the merged set's frame covariance comes from them; given for every view with markers or for none"
                 ),
             ));
         }
+        decls.push(port(
+            "rig",
+            <Arc<StereoRig> as InputPort<'a, Inputs>>::type_names(),
+            true,
+            "The rig that took every view: with rig_covariance, the calibration's spread joins each marker's weight (it makes one marker's sightings from different views disagree), not the frame's error (register.icp counts it)",
+        ));
+        decls.push(port(
+            "rig_covariance",
+            <Arc<Table> as InputPort<'a, Inputs>>::type_names(),
+            true,
+            "The rig's parameter covariance (calib.stereo_calibrate's `covariance`)",
+        ));
         decls
     }
 
@@ -151,7 +171,11 @@ impl<'a> InputSet<'a, Inputs> for MultiviewInputs {
                 })
             })
             .collect::<Result<_, PortProblem>>()?;
-        Ok(MultiviewInputs { views })
+        Ok(MultiviewInputs {
+            views,
+            rig: read_input(source, "rig")?,
+            rig_covariance: read_input(source, "rig_covariance")?,
+        })
     }
 }
 
@@ -165,10 +189,13 @@ pub struct MultiviewOutputs {
     pub markers: Markers,
     /// How well the views pin the merged set against the first view's true
     /// camera frame: the covariance of a small turn (`rotation_*_rad`) and
-    /// shift (`translation_*_mm`) of the whole output in the output frame,
-    /// from the first view's fit onto the others (the frame follows its
-    /// data); 6 x 6, one row per column (no rows where its pairs do not pin
-    /// it). `register.icp` takes it as `source_covariance`
+    /// shift (`translation_*_mm`) of the whole output in the output frame.
+    /// With every sighting's covariance, from the markers' noise through
+    /// their joint adjustment (every other view's pose and every marker's
+    /// position; the first view held, so its sightings' errors move the
+    /// rest); otherwise from the first view's fit onto the others. 6 x 6,
+    /// one row per column (no rows where nothing pins it). `register.icp`
+    /// takes it as `source_covariance`
     pub covariance: Table,
 }
 
@@ -183,6 +210,35 @@ const PALETTE: [[u8; 3]; MAX_VIEWS] = [
     [240, 140, 190],
     [150, 150, 150],
 ];
+
+/// Each view's markers' covariances with the calibration's spread added
+/// (each view's frame, mm^2): the outer products of each marker's
+/// triangulation shifts along the rig's standard-deviation directions. A
+/// marker the rig cannot triangulate keeps its own.
+fn with_calibration_spread(
+    markers: &[Option<Vec<Point3<f64>>>],
+    covariances: &[Option<Vec<Matrix3<f64>>>],
+    rig: &RigModel,
+    perturbed: &[(RigModel, RigModel)],
+) -> Vec<Option<Vec<Matrix3<f64>>>> {
+    markers
+        .iter()
+        .zip(covariances)
+        .map(|(seen, own)| {
+            let (seen, own) = (seen.as_ref()?, own.as_ref()?);
+            Some(
+                seen.iter()
+                    .zip(own)
+                    .map(|(p, c)| {
+                        triangulation_shifts(rig, perturbed, p)
+                            .map(|shifts| shifts.iter().fold(*c, |c, s| c + s * s.transpose()))
+                            .unwrap_or(*c)
+                    })
+                    .collect(),
+            )
+        })
+        .collect()
+}
 
 impl RunOp for Multiview {
     type Inputs = MultiviewInputs;
@@ -298,6 +354,33 @@ impl RunOp for Multiview {
             }
             Vec::new()
         };
+        // The weights: the sightings' own noise and, with the rig's
+        // parameter covariance, the calibration's spread, which makes one
+        // marker's sightings from different views disagree too (it moves
+        // each view's markers alike in that view's frame, so differently in
+        // the world).
+        let weights = match (&inputs.rig, &inputs.rig_covariance) {
+            (None, None) => covariances.clone(),
+            (Some(rig), Some(table)) if table.row_count() > 0 && !covariances.is_empty() => {
+                let model = RigModel::from_value(rig);
+                let perturbed = perturbed_rigs_from_table(&model, table)
+                    .map_err(|e| OpError::invalid(format!("rig_covariance: {e}")))?;
+                with_calibration_spread(&markers, &covariances, &model, &perturbed)
+            }
+            (Some(_), Some(table)) => {
+                if table.row_count() == 0 {
+                    ctx.note(
+                        "rig_covariance has no rows (a parameter undetermined): the markers weigh by their own noise alone",
+                    );
+                }
+                covariances.clone()
+            }
+            _ => {
+                return Err(OpError::invalid(
+                    "connect both rig and rig_covariance, or neither",
+                ));
+            }
+        };
         let anchoring = (self.marker_weight > 0.0).then(|| MarkerAnchoring {
             markers: markers
                 .iter()
@@ -306,47 +389,15 @@ impl RunOp for Multiview {
             tolerance_mm: self.merge_mm,
             weight: self.marker_weight,
             outlier_mm: self.outlier_mm,
-            covariances: covariances.clone(),
+            covariances: weights.clone(),
         });
         let mut m = register_views(&views, &rough, &p, self.rounds, anchoring.as_ref())
             .map_err(OpError::invalid)?;
-        let spread = first_view_spread(
-            &views,
-            &m.poses,
-            &p,
-            anchoring.as_ref(),
-            self.error_block_mm,
-        );
         let to_output = match self.frame {
             OutputFrame::FirstView => m.poses[0].inverse(),
             OutputFrame::World => Isometry3::identity(),
         };
-        let covariance = match spread {
-            Ok(c) => {
-                let c = carried_pose_covariance(&to_output, &c);
-                let turn = (0..3).map(|i| c[(i, i)]).sum::<f64>().sqrt();
-                ctx.metric("frame_rotation_sd_deg", turn.to_degrees());
-                // Where it matters: how far the middle of the first view's
-                // surface may move (RMS over the axes, mm).
-                let n = views[0].points.len() as f64;
-                let middle = views[0]
-                    .points
-                    .iter()
-                    .map(|x| x.coords)
-                    .sum::<Vector3<f64>>()
-                    / n;
-                let middle = to_output * (m.poses[0] * Point3::from(middle));
-                let moved = mapped_point_covariance(&Isometry3::identity(), &c, &middle);
-                ctx.metric("frame_shift_sd_mm", moved.trace().sqrt());
-                pose_covariance_table(&c)
-            }
-            Err(e) => {
-                ctx.note(format!(
-                    "no covariance of the merged set: the first view against the others: {e}"
-                ));
-                empty_pose_covariance()
-            }
-        };
+        let first_view_poses = m.poses.clone();
         let out_frame = match self.frame {
             OutputFrame::FirstView => {
                 for pose in &mut m.poses {
@@ -366,11 +417,77 @@ impl RunOp for Multiview {
             merge_mm: self.merge_mm,
             outlier_mm: self.outlier_mm,
         };
-        let sighting_covariances: Vec<Option<Vec<Matrix3<f64>>>> = seen_in
-            .iter()
-            .map(|&v| covariances.get(v).cloned().flatten())
-            .collect();
-        let (merged, dropped) = merge_markers_weighted(&sightings, &sighting_covariances, &params);
+        let of_sightings = |table: &[Option<Vec<Matrix3<f64>>>]| -> Vec<Option<Vec<Matrix3<f64>>>> {
+            seen_in
+                .iter()
+                .map(|&v| table.get(v).cloned().flatten())
+                .collect()
+        };
+        let (sighting_noise, sighting_weights) =
+            (of_sightings(&covariances), of_sightings(&weights));
+        let (merged, dropped) = merge_markers_weighted(&sightings, &sighting_weights, &params);
+        // The markers' noise pins the frame where they anchor the views and
+        // every sighting has a covariance; the surfaces' fit otherwise.
+        let from_markers = match anchoring.as_ref().filter(|a| !a.covariances.is_empty()) {
+            Some(_) => match markers_frame_spread(
+                &merged,
+                &sightings,
+                &sighting_noise,
+                &sighting_weights,
+                &seen_in,
+                views.len(),
+            ) {
+                Ok(c) => Some(c),
+                Err(e) => {
+                    ctx.note(format!(
+                        "the merged set's frame error from the surfaces' fit, not the markers' noise: {e}"
+                    ));
+                    None
+                }
+            },
+            None => None,
+        };
+        // 1 when the frame's covariance is the markers' joint adjustment's.
+        ctx.metric(
+            "frame_from_markers",
+            f64::from(u8::from(from_markers.is_some())),
+        );
+        let frame_covariance = match from_markers {
+            Some(c) => Ok(c),
+            None => first_view_spread(
+                &views,
+                &first_view_poses,
+                &p,
+                anchoring.as_ref(),
+                self.error_block_mm,
+            )
+            .map(|c| carried_pose_covariance(&to_output, &c)),
+        };
+        let covariance = match frame_covariance {
+            Ok(c) => {
+                let turn = (0..3).map(|i| c[(i, i)]).sum::<f64>().sqrt();
+                ctx.metric("frame_rotation_sd_deg", turn.to_degrees());
+                // Where it matters: how far the middle of the first view's
+                // surface may move (RMS over the axes, mm).
+                let n = views[0].points.len() as f64;
+                let middle = views[0]
+                    .points
+                    .iter()
+                    .map(|x| x.coords)
+                    .sum::<Vector3<f64>>()
+                    / n;
+                let middle = m.poses[0] * Point3::from(middle);
+                let moved = mapped_point_covariance(&Isometry3::identity(), &c, &middle);
+                ctx.metric("frame_shift_sd_mm", moved.trace().sqrt());
+                pose_covariance_table(&c)
+            }
+            Err(e) => {
+                ctx.note(format!(
+                    "no covariance of the merged set: the first view against the others: {e}"
+                ));
+                empty_pose_covariance()
+            }
+        };
         for d in &dropped {
             ctx.note(format!(
                 "view {}: marker {} dropped, {:.1} mm from where the other views put it \
@@ -435,8 +552,22 @@ mod tests {
 
     /// The error the op refuses `views` with.
     fn run(views: Vec<ViewInputs>) -> String {
+        run_with_rig(views, None, None)
+    }
+
+    /// The error the op refuses `views` and the rig's ports with.
+    fn run_with_rig(
+        views: Vec<ViewInputs>,
+        rig: Option<StereoRig>,
+        rig_covariance: Option<Table>,
+    ) -> String {
         let mut ctx = RunCtx::new("views", &std::env::temp_dir());
-        op().run(MultiviewInputs { views }, &mut ctx)
+        let inputs = MultiviewInputs {
+            views,
+            rig: rig.map(Arc::new),
+            rig_covariance: rig_covariance.map(Arc::new),
+        };
+        op().run(inputs, &mut ctx)
             .map(|_| ())
             .unwrap_err()
             .to_string()
@@ -446,7 +577,8 @@ mod tests {
     fn ports_are_read_by_view_and_the_first_two_clouds_are_required() {
         let decls = <MultiviewInputs as InputSet<'_, Inputs>>::port_decls();
         let names: Vec<&str> = decls.iter().map(|d| d.name.as_str()).collect();
-        assert_eq!(names.len(), 4 * MAX_VIEWS);
+        assert_eq!(names.len(), 4 * MAX_VIEWS + 2);
+        assert_eq!(names[4 * MAX_VIEWS..], ["rig", "rig_covariance"]);
         assert_eq!(
             names[..6],
             [
@@ -550,5 +682,49 @@ mod tests {
             e.contains("marker_covariance0: no column `cov_xy_mm2`"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn the_rig_comes_with_its_covariance_and_a_bad_one_is_named() {
+        let camera = fusegraph_engine::value::Camera {
+            width: 800,
+            height: 600,
+            k: [[1300.0, 0.0, 400.0], [0.0, 1300.0, 300.0], [0.0, 0.0, 1.0]],
+            distortion: [0.0; 5],
+        };
+        let rig = StereoRig {
+            left: camera.clone(),
+            right: camera,
+            rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            translation_mm: [-80.0, 0.0, 0.0],
+        };
+        let view = || {
+            let positions = vec![0.0, 0.0, 500.0, 30.0, 0.0, 500.0, 0.0, 30.0, 510.0];
+            let points: Vec<f32> = positions.iter().map(|&x| x as f32).collect();
+            let covariance: Vec<f64> = (0..3)
+                .flat_map(|id| [id as f64, 0.01, 0.0, 0.0, 0.01, 0.0, 0.1])
+                .collect();
+            ViewInputs {
+                cloud: Some(Arc::new(
+                    PointCloud::new(points, None, None, "camera").unwrap(),
+                )),
+                pose: Some(Arc::new(Transform {
+                    matrix: crate::camera::isometry_to_matrix(&Isometry3::identity()),
+                    from: "camera".into(),
+                    to: "world".into(),
+                })),
+                markers: Some(Arc::new(
+                    Markers::new(positions, vec![0, 1, 2], "camera").unwrap(),
+                )),
+                marker_covariance: Some(Arc::new(
+                    Table::new(crate::calib::columns_with_covariance(&["id"]), covariance).unwrap(),
+                )),
+            }
+        };
+        let e = run_with_rig(vec![view(), view()], Some(rig.clone()), None);
+        assert!(e.contains("connect both rig and rig_covariance"), "{e}");
+        let unknown = Table::new(vec!["left_zoom".into()], vec![1.0]).unwrap();
+        let e = run_with_rig(vec![view(), view()], Some(rig), Some(unknown));
+        assert!(e.contains("rig_covariance: `left_zoom`"), "{e}");
     }
 }

@@ -3,7 +3,7 @@
 
 use super::shape_error;
 use crate::calib::rectification_of;
-use crate::calib::{ParameterCovariance, RigModel, perturbed_rigs, triangulated_covariance};
+use crate::calib::{RigModel, perturbed_rigs_from_table, triangulated_covariance};
 use crate::calib::{columns_with_covariance, covariance_entries};
 use crate::camera::CameraModel;
 use crate::stereo::markers::MIN_PAIRS_FOR_NOISE;
@@ -19,8 +19,8 @@ use fusegraph_engine::value::{Image, Markers, Pixels, Rectification, StereoRig, 
 /// Coloured markers found by HSV thresholds in both rectified images, paired
 /// along rows, triangulated
 #[derive(Debug, Clone, PartialEq, Op)]
-// 6: each marker's covariance.
-#[op(name = "stereo.hsv_markers", version = 6)]
+// 6: each marker's covariance. 7: and its localisation part alone.
+#[op(name = "stereo.hsv_markers", version = 7)]
 pub struct HsvMarkers {
     /// Hue range [min, max]; min > max wraps through 0 (default: the
     /// phantom's green)
@@ -95,58 +95,72 @@ pub struct HsvMarkersOutputs {
     /// spread, to first order: `id`, `cov_{xx,xy,xz,yy,yz,zz}_mm2`; needs
     /// `rig` and three or more pairs (otherwise no rows)
     pub covariance: Table,
+    /// The part of `covariance` from the centroids' noise alone (the same
+    /// columns and rows): what differs from view to view of one rig. The
+    /// calibration's spread moves every view's markers alike, so markers
+    /// compared across views (register.multiview) are weighed by this.
+    pub localisation_covariance: Table,
 }
 
-/// Each marker's covariance row (see [`HsvMarkersOutputs::covariance`]),
+/// The covariance rows of [`HsvMarkersOutputs`]: with the calibration's
+/// spread, and from the centroids' noise alone.
+#[derive(Debug, Default)]
+struct CovarianceRows {
+    total: Vec<Vec<f64>>,
+    localisation: Vec<Vec<f64>>,
+}
+
+/// Each marker's covariance rows (see [`HsvMarkersOutputs::covariance`]),
 /// and the noise of a centroid; none without a rig or enough pairs.
 fn marker_covariances(
     ctx: &mut RunCtx,
     found: &[StereoMarker],
     rig: Option<&StereoRig>,
     rig_covariance: Option<&Table>,
-) -> Result<Vec<Vec<f64>>, OpError> {
+) -> Result<CovarianceRows, OpError> {
     let Some(rig) = rig else {
         if rig_covariance.is_some() {
             return Err(OpError::invalid(
                 "rig_covariance needs the rig: connect `rig` too",
             ));
         }
-        return Ok(Vec::new());
+        return Ok(CovarianceRows::default());
     };
     let Some(sigma_px) = localisation_noise_px(found) else {
         ctx.note(format!(
             "no marker covariances: {} pairs, and the centroids' noise is measured from {MIN_PAIRS_FOR_NOISE} or more",
             found.len()
         ));
-        return Ok(Vec::new());
+        return Ok(CovarianceRows::default());
     };
     ctx.metric("localisation_sd_px", sigma_px);
     let model = RigModel::from_value(rig);
     let perturbed = match rig_covariance.filter(|t| t.row_count() > 0) {
-        Some(t) => {
-            let c = ParameterCovariance::from_table(t)
-                .map_err(|e| OpError::invalid(format!("rig_covariance: {e}")))?;
-            perturbed_rigs(&model, &c.names, &c.sigma_directions())
-                .map_err(|e| OpError::invalid(format!("rig_covariance: {e}")))?
-        }
+        Some(t) => perturbed_rigs_from_table(&model, t)
+            .map_err(|e| OpError::invalid(format!("rig_covariance: {e}")))?,
         None => Vec::new(),
     };
-    let rows: Vec<Vec<f64>> = found
-        .iter()
-        .enumerate()
-        .filter_map(|(id, m)| {
-            let c = triangulated_covariance(&model, &perturbed, &m.point_mm, sigma_px)?;
-            Some(
-                [id as f64]
-                    .into_iter()
-                    .chain(covariance_entries(&c))
-                    .collect(),
-            )
-        })
-        .collect();
-    if !rows.is_empty() {
-        let mean_trace = rows.iter().map(|r| r[1] + r[4] + r[6]).sum::<f64>() / rows.len() as f64;
-        ctx.metric("marker_sd_mm", mean_trace.sqrt());
+    let row = |id: usize, c: &nalgebra::Matrix3<f64>| -> Vec<f64> {
+        [id as f64]
+            .into_iter()
+            .chain(covariance_entries(c))
+            .collect()
+    };
+    let mut rows = CovarianceRows::default();
+    for (id, m) in found.iter().enumerate() {
+        let both = triangulated_covariance(&model, &perturbed, &m.point_mm, sigma_px)
+            .zip(triangulated_covariance(&model, &[], &m.point_mm, sigma_px));
+        if let Some((total, localisation)) = both {
+            rows.total.push(row(id, &total));
+            rows.localisation.push(row(id, &localisation));
+        }
+    }
+    let mean_sd = |rows: &[Vec<f64>]| {
+        (rows.iter().map(|r| r[1] + r[4] + r[6]).sum::<f64>() / rows.len() as f64).sqrt()
+    };
+    if !rows.total.is_empty() {
+        ctx.metric("marker_sd_mm", mean_sd(&rows.total));
+        ctx.metric("marker_localisation_sd_mm", mean_sd(&rows.localisation));
     }
     Ok(rows)
 }
@@ -303,12 +317,14 @@ impl RunOp for HsvMarkers {
             rig.as_deref(),
             inputs.rig_covariance.as_deref(),
         )?;
-        let covariance =
-            Table::new(columns_with_covariance(&["id"]), rows.concat()).map_err(shape_error)?;
+        let table = |rows: Vec<Vec<f64>>| {
+            Table::new(columns_with_covariance(&["id"]), rows.concat()).map_err(shape_error)
+        };
         Ok(HsvMarkersOutputs {
             markers,
             blobs,
-            covariance,
+            covariance: table(rows.total)?,
+            localisation_covariance: table(rows.localisation)?,
         })
     }
 }

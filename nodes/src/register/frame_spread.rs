@@ -1,7 +1,7 @@
 //! How well the markers pin the views of a merged set to the first view:
 //! the joint least-squares adjustment of every other view's pose and every
 //! marker's position from all sightings, linearised where the merge left
-//! them, each sighting weighed by its inverse covariance. The first view's
+//! them, each sighting weighed as the merge weighed it. The first view's
 //! pose is held (it is the merged set's frame), so its sightings' errors
 //! move every other view: the covariance of the others' mean pose is how
 //! far the merged set may sit from the first view's true frame.
@@ -21,7 +21,9 @@ use nalgebra::{DMatrix, Matrix3, Matrix6, Point3};
 /// poses' frame (mm, mm^2).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sighting {
+    /// The view that saw it (0: the view the others are held to).
     pub view: usize,
+    /// Where the merge put it, mm.
     pub position: Point3<f64>,
     /// The covariance of its error.
     pub covariance: Matrix3<f64>,

@@ -60,3 +60,21 @@ pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.add::<ops::Remap>()?;
     Ok(())
 }
+
+/// A test rig: two 800 x 600 cameras (f 1300 px, principal point at the
+/// centre, no distortion), parallel, 80 mm apart along x.
+#[cfg(test)]
+pub(crate) fn parallel_test_rig() -> fusegraph_engine::value::StereoRig {
+    let camera = fusegraph_engine::value::Camera {
+        width: 800,
+        height: 600,
+        k: [[1300.0, 0.0, 400.0], [0.0, 1300.0, 300.0], [0.0, 0.0, 1.0]],
+        distortion: [0.0; 5],
+    };
+    fusegraph_engine::value::StereoRig {
+        left: camera.clone(),
+        right: camera,
+        rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        translation_mm: [-80.0, 0.0, 0.0],
+    }
+}

@@ -686,18 +686,7 @@ mod tests {
 
     #[test]
     fn the_rig_comes_with_its_covariance_and_a_bad_one_is_named() {
-        let camera = fusegraph_engine::value::Camera {
-            width: 800,
-            height: 600,
-            k: [[1300.0, 0.0, 400.0], [0.0, 1300.0, 300.0], [0.0, 0.0, 1.0]],
-            distortion: [0.0; 5],
-        };
-        let rig = StereoRig {
-            left: camera.clone(),
-            right: camera,
-            rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-            translation_mm: [-80.0, 0.0, 0.0],
-        };
+        let rig = crate::calib::parallel_test_rig();
         let view = || {
             let positions = vec![0.0, 0.0, 500.0, 30.0, 0.0, 500.0, 0.0, 30.0, 510.0];
             let points: Vec<f32> = positions.iter().map(|&x| x as f32).collect();

@@ -96,9 +96,10 @@ pub struct HsvMarkersOutputs {
     /// `rig` and three or more pairs (otherwise no rows)
     pub covariance: Table,
     /// The part of `covariance` from the centroids' noise alone (the same
-    /// columns and rows): what differs from view to view of one rig. The
-    /// calibration's spread moves every view's markers alike, so markers
-    /// compared across views (register.multiview) are weighed by this.
+    /// columns and rows): what differs from view to view of one rig (the
+    /// calibration's error moves every view's markers alike in its own
+    /// frame). register.multiview takes it as the sightings' noise and adds
+    /// the calibration's spread to their weights itself.
     pub localisation_covariance: Table,
 }
 
@@ -472,5 +473,43 @@ mod tests {
         let op = Typed::<HsvMarkers>::new().unwrap();
         let err = op.run(&inputs, &params, &mut ctx()).err().unwrap();
         assert!(err.to_string().contains("hue_deg"), "{err}");
+    }
+
+    #[test]
+    fn the_localisation_part_leaves_out_the_calibrations_spread() {
+        let rig = crate::calib::parallel_test_rig();
+        // Three markers at 500 mm, their centroids' rows 0.1 px apart.
+        let blob = |x: f64, y: f64| crate::stereo::Blob {
+            x_px: x,
+            y_px: y,
+            area_px: 50.0,
+            aspect: 1.0,
+            fit: 1.0,
+            image_px: (x, y),
+        };
+        let found: Vec<StereoMarker> = [(-30.0, 0.0), (20.0, 10.0), (15.0, -25.0)]
+            .iter()
+            .map(|&(x, y)| {
+                let (u, v) = (400.0 + 1300.0 * x / 500.0, 300.0 + 1300.0 * y / 500.0);
+                StereoMarker {
+                    left: blob(u, v),
+                    right: blob(u - 208.0, v + 0.1),
+                    disparity_px: 208.0,
+                    point_mm: nalgebra::Point3::new(x, y, 500.0),
+                }
+            })
+            .collect();
+        let alone = marker_covariances(&mut ctx(), &found, Some(&rig), None).unwrap();
+        assert_eq!(alone.total, alone.localisation);
+        // The left focal length known to 2 px: the total grows (every
+        // marker is off the optical axis in x, where fx moves it), the
+        // localisation part does not.
+        let fx = Table::new(vec!["left_fx_px".into()], vec![4.0]).unwrap();
+        let rows = marker_covariances(&mut ctx(), &found, Some(&rig), Some(&fx)).unwrap();
+        assert_eq!(rows.localisation, alone.localisation);
+        for (total, own) in rows.total.iter().zip(&rows.localisation) {
+            let trace = |r: &[f64]| r[1] + r[4] + r[6];
+            assert!(trace(total) > trace(own) + 1e-6, "{total:?} vs {own:?}");
+        }
     }
 }

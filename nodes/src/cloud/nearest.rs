@@ -68,6 +68,66 @@ impl Nearest {
         }
     }
 
+    /// The nearest point to `p` among those within `radius_mm` of it
+    /// (index, squared distance mm²) and a lower bound on the squared
+    /// distance to the second nearest: that distance if it lies within
+    /// `radius_mm` too, else `radius_mm²` (less the f32 rounding of the
+    /// tree). `None` when no point lies within `radius_mm`.
+    ///
+    /// Where a tight bound on the nearest distance is known (the distance to
+    /// a point of the set that was nearest a moment ago), the radius prunes
+    /// the search: within 1.05 times the nearest distance it costs less
+    /// than [`Nearest::nearest`], within twice about as much, while
+    /// [`Nearest::nearest_two`] costs about twice as much.
+    pub fn nearest_two_within(
+        &self,
+        p: &Point3<f64>,
+        radius_mm: f64,
+    ) -> Option<((usize, f64), f64)> {
+        // The tree rounds points and the query to f32: a point this much
+        // inside the radius may still be left out, so the bound is cut by it.
+        let rounding_mm = 8.0 * f32::EPSILON as f64 * (p.coords.amax() + radius_mm);
+        let radius_f32 = (radius_mm + rounding_mm) as f32;
+        let found = self
+            .tree
+            .query(&[p.x as f32, p.y as f32, p.z as f32])
+            .nearest_n::<SquaredEuclidean<f32>>(NonZero::new(2).expect("2 > 0"))
+            .within(radius_f32 * radius_f32)
+            .unsorted()
+            .execute();
+        let beyond = (radius_mm - rounding_mm).max(0.0);
+        let exact = |k: usize| {
+            found.get(k).map(|r| {
+                let item = r.item as usize;
+                (item, (self.points[item] - p).norm_squared())
+            })
+        };
+        match (exact(0)?, exact(1)) {
+            (a, Some(b)) if b.1 < a.1 => Some((b, a.1)),
+            (a, Some(b)) => Some((a, b.1)),
+            (a, None) => Some((a, (beyond * beyond).max(a.1))),
+        }
+    }
+
+    /// The median distance from a point of the set to its nearest other
+    /// point (mm), over an even sample of at most `sample` points: the
+    /// set's typical spacing (0 for a one-point set).
+    pub fn typical_spacing_mm(&self, sample: usize) -> f64 {
+        let stride = self.points.len().div_ceil(sample.max(1)).max(1);
+        let mut gaps: Vec<f64> = self
+            .points
+            .iter()
+            .step_by(stride)
+            .map(|p| self.nearest_two(p).1.sqrt())
+            .filter(|d| d.is_finite())
+            .collect();
+        if gaps.is_empty() {
+            return 0.0;
+        }
+        let mid = gaps.len() / 2;
+        *gaps.select_nth_unstable_by(mid, f64::total_cmp).1
+    }
+
     /// Point `index` of the set, mm.
     pub fn point(&self, index: usize) -> Point3<f64> {
         self.points[index]
@@ -99,5 +159,65 @@ mod tests {
         let near = Nearest::new(&tri).unwrap();
         assert_eq!(near.nearest(&Point3::new(9.0, 1.0, 0.0)).0, 1);
         assert!(Nearest::new(&[]).is_none());
+    }
+
+    #[test]
+    fn typical_spacing_of_a_grid_is_its_step() {
+        let grid: Vec<Point3<f64>> = (0..400)
+            .map(|k| Point3::new((k % 20) as f64 * 0.7, (k / 20) as f64 * 0.7, 3.0))
+            .collect();
+        let near = Nearest::new(&grid).unwrap();
+        assert!((near.typical_spacing_mm(50) - 0.7).abs() < 1e-12);
+        let one = Nearest::new(&grid[..1]).unwrap();
+        assert_eq!(one.typical_spacing_mm(50), 0.0);
+    }
+
+    /// A scattered set and queries near and far: the radius search's
+    /// nearest is the full search's, and its second-nearest bound is the
+    /// true second distance when that lies inside the radius, else at most
+    /// the radius and never above the true second distance.
+    #[test]
+    fn nearest_two_within_agrees_with_the_full_search() {
+        let mut state = 12345u64;
+        let mut uniform = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let points: Vec<Point3<f64>> = (0..2000)
+            .map(|_| Point3::new(uniform() * 50.0, uniform() * 50.0 + 100.0, uniform() * 5.0))
+            .collect();
+        let near = Nearest::new(&points).unwrap();
+        let mut bounded = 0;
+        for _ in 0..500 {
+            let q = Point3::new(
+                uniform() * 60.0 - 5.0,
+                uniform() * 60.0 + 95.0,
+                uniform() * 9.0 - 2.0,
+            );
+            let ((j, d1), d2) = near.nearest_two(&q);
+            let radius_mm = d1.sqrt() * (1.0 + 2.0 * uniform()) + 1e-3;
+            let ((k, e1), e2) = near.nearest_two_within(&q, radius_mm).unwrap();
+            assert_eq!((k, e1), (j, d1));
+            if d2.sqrt() < radius_mm - 1e-3 {
+                assert_eq!(e2, d2);
+            } else {
+                bounded += 1;
+                assert!(
+                    e2 <= d2 && e2 <= radius_mm * radius_mm,
+                    "{e2} {d2} {radius_mm}"
+                );
+                assert!(
+                    e2.sqrt() > radius_mm - 1e-3,
+                    "the bound is the radius, less rounding"
+                );
+            }
+        }
+        assert!(bounded > 50, "both cases occur ({bounded} bounded)");
+        assert!(
+            near.nearest_two_within(&Point3::new(-50.0, 0.0, 0.0), 1.0)
+                .is_none()
+        );
     }
 }

@@ -110,25 +110,31 @@ impl IcpParams {
 /// Pairs of (source index, target index, distance mm).
 pub(crate) type Pairs = Vec<(usize, usize, f64)>;
 
-/// Each source point's nearest target point from its last two-point search,
-/// reused while it is provably still the nearest. Searched from `at` with
-/// the nearest at distance d1 and the second nearest at d2, a point moved
-/// less than (d2 - d1) / 2 from `at` has the same nearest: that one is at
-/// most d1 + moved away, every other at least d2 - moved. ICP's later steps
-/// move points by microns, so most searches are skipped, and the pairs are
-/// those a full search finds (a tie aside).
+/// Each source point's nearest target point from its last search, reused
+/// while it is provably still the nearest. Searched from `at` with the
+/// nearest at distance d1 and the second nearest at d2 (or a lower bound on
+/// it), a point moved less than (d2 - d1) / 2 from `at` has the same
+/// nearest: that one is at most d1 + moved away, every other at least
+/// d2 - moved. ICP's later steps move points by microns, so most searches
+/// are skipped, and the pairs are those a full search finds (a tie aside).
 ///
-/// A two-point search costs about twice a one-point search, so while
-/// points keep moving (fewer than half the searches skipped) the others
-/// search for the nearest alone, and every fourth iteration searches two
-/// again to catch the moment they settle.
+/// A point that moved further is searched again. Where it moved little
+/// against its distance to the old nearest or the target's typical spacing,
+/// the search is confined to a ball that must hold the nearest (the old
+/// nearest's distance) and wide enough to give slack for a move as large
+/// again (plus twice the move): it finds the two nearest in the ball, and
+/// the confinement makes it cost about what an unconfined search for one
+/// does. Where it moved much (ICP's first steps), the ball would be wide
+/// and slow, so the search is for the nearest alone, kept with no slack:
+/// the next, smaller step will search the ball. A point's first search
+/// finds the nearest alone.
 #[derive(Debug, Clone)]
 pub(crate) struct NearestCache {
     entries: Vec<Option<CachedNearest>>,
-    /// Whether the last iteration skipped at least half its searches.
-    paying: bool,
-    /// Iterations since the last one that searched two points.
-    since_two: usize,
+    /// The target's typical spacing, mm.
+    spacing_mm: f64,
+    /// How many of the last iteration's searches were skipped.
+    skipped: usize,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -137,58 +143,53 @@ struct CachedNearest {
     at: Point3<f64>,
     /// Its nearest target point there.
     nearest: usize,
-    /// Half the gap between the nearest and second-nearest distances, mm.
+    /// How far it may move and keep that nearest, mm: half the gap
+    /// between the nearest and second-nearest distances (0 when only the
+    /// nearest was searched).
     slack_mm: f64,
 }
 
-/// Iterations that search for the nearest alone between two-point searches.
-const ONE_POINT_RUN: usize = 3;
+/// Target points sampled for the target's typical spacing.
+const SPACING_SAMPLE: usize = 256;
 
 impl NearestCache {
-    /// An empty cache for `n` source points.
-    pub(crate) fn new(n: usize) -> Self {
+    /// An empty cache for `n` source points searched in `tree`.
+    pub(crate) fn new(n: usize, tree: &Nearest) -> Self {
         NearestCache {
             entries: vec![None; n],
-            paying: true,
-            since_two: 0,
+            spacing_mm: tree.typical_spacing_mm(SPACING_SAMPLE),
+            skipped: 0,
         }
-    }
-
-    /// Whether this iteration's searches find two points (and refresh the
-    /// cache) or the nearest alone.
-    fn searches_two(&self) -> bool {
-        self.paying || self.since_two >= ONE_POINT_RUN
-    }
-
-    /// Records an iteration that skipped `skipped` of `n` searches.
-    fn record(&mut self, searched_two: bool, skipped: usize, n: usize) {
-        self.paying = 2 * skipped >= n;
-        self.since_two = if searched_two { 0 } else { self.since_two + 1 };
     }
 }
 
 impl CachedNearest {
     /// The nearest target point to a source point now at `m`, the squared
     /// distance to it (mm²), and whether `cached` (its last search) gave
-    /// it; otherwise a new search, which `cached` keeps when it found two.
+    /// it; otherwise a new search, which `cached` keeps. A search is
+    /// confined to a ball when the move is small against the old nearest's
+    /// distance or `spacing_mm` (the target's typical spacing).
     fn nearest(
         cached: &mut Option<Self>,
         tree: &Nearest,
         m: &Point3<f64>,
-        search_two: bool,
+        spacing_mm: f64,
     ) -> ((usize, f64), bool) {
-        if let Some(c) = cached
-            && (m - c.at).norm() < c.slack_mm
-        {
-            return (
-                (c.nearest, (tree.point(c.nearest) - m).norm_squared()),
-                true,
-            );
+        let mut confined = None;
+        if let Some(c) = cached {
+            let moved_mm = (m - c.at).norm();
+            let old_mm = (tree.point(c.nearest) - m).norm();
+            if moved_mm < c.slack_mm {
+                return ((c.nearest, old_mm * old_mm), true);
+            }
+            if 2.0 * moved_mm <= old_mm.max(spacing_mm) {
+                confined = tree.nearest_two_within(m, old_mm + 2.0 * moved_mm);
+            }
         }
-        if !search_two {
-            return (tree.nearest(m), false);
-        }
-        let ((j, d1), d2) = tree.nearest_two(m);
+        let ((j, d1), d2) = confined.unwrap_or_else(|| {
+            let one = tree.nearest(m);
+            (one, one.1)
+        });
         *cached = Some(CachedNearest {
             at: *m,
             nearest: j,
@@ -217,13 +218,13 @@ pub(crate) fn correspondences(
                 moved.len(),
                 "one entry per source point"
             );
-            let two = cache.searches_two();
+            let spacing_mm = cache.spacing_mm;
             let found: Vec<((usize, f64), bool)> = moved
                 .par_iter()
                 .zip(cache.entries.par_iter_mut())
-                .map(|(m, c)| CachedNearest::nearest(c, tree, m, two))
+                .map(|(m, c)| CachedNearest::nearest(c, tree, m, spacing_mm))
                 .collect();
-            cache.record(two, found.iter().filter(|f| f.1).count(), found.len());
+            cache.skipped = found.iter().filter(|f| f.1).count();
             found
                 .into_iter()
                 .enumerate()
@@ -529,7 +530,7 @@ pub fn icp_anchored(
     for voxel in p.scales() {
         let (src, max_d) = p.scale(source, voxel);
         let mut previous: Option<(f64, f64)> = None;
-        let mut cache = NearestCache::new(src.len());
+        let mut cache = NearestCache::new(src.len(), tree);
         for _ in 0..p.max_iterations {
             let moved: Vec<Point3<f64>> = src.par_iter().map(|s| transform * s).collect();
             let (pairs, fitness) =
@@ -743,8 +744,8 @@ mod tests {
         let target = surface();
         let tree = Nearest::new(&target).unwrap();
         let source: Vec<Point3<f64>> = target.iter().step_by(3).copied().collect();
-        let mut cache = NearestCache::new(source.len());
-        let (mut skipped, mut one_point_iterations) = (0, 0);
+        let mut cache = NearestCache::new(source.len(), &tree);
+        let mut mostly_skipped = 0;
         for k in 0..14 {
             // Steps shrinking from 2 mm to microns, like ICP's.
             let step = 2.0 * 0.4f64.powi(k);
@@ -753,27 +754,17 @@ mod tests {
                 Vector3::new(0.0, 0.002 * step, 0.001 * step),
             );
             let moved: Vec<Point3<f64>> = source.iter().map(|s| pose * s).collect();
-            let two = cache.searches_two();
-            one_point_iterations += usize::from(!two);
-            let before = cache.entries.iter().filter(|e| e.is_some()).count();
             let (cached, _) = correspondences(&moved, &tree, 5.0, 1.0, Some(&mut cache)).unwrap();
             let (full, _) = correspondences(&moved, &tree, 5.0, 1.0, None).unwrap();
             assert_eq!(cached, full, "iteration {k}");
-            if cache.paying && before > 0 {
-                skipped += 1;
+            if 2 * cache.skipped > source.len() {
+                mostly_skipped += 1;
             }
         }
-        // Both modes ran, and late iterations skipped most searches.
-        assert!(
-            one_point_iterations > 0 && skipped > 3,
-            "{one_point_iterations}, {skipped}"
-        );
+        // Late iterations skipped most searches, early ones searched again.
+        assert!((4..14).contains(&mostly_skipped), "{mostly_skipped}");
     }
 
-    /// A spherical cap (radius 60 mm, above z = 10 mm) with its normals
-    /// and k-d tree, the turn of 0.2 rad about its axis, and the cap turned
-    /// back by it (the source that turn registers onto the cap).
-    #[allow(clippy::type_complexity)]
     fn turned_cap() -> (
         Vec<Point3<f64>>,
         Vec<Vector3<f64>>,

@@ -765,6 +765,10 @@ mod tests {
         assert!((4..14).contains(&mostly_skipped), "{mostly_skipped}");
     }
 
+    /// A spherical cap (radius 60 mm, above z = 10 mm) with its normals
+    /// and k-d tree, the turn of 0.2 rad about its axis, and the cap turned
+    /// back by it (the source that turn registers onto the cap).
+    #[allow(clippy::type_complexity)]
     fn turned_cap() -> (
         Vec<Point3<f64>>,
         Vec<Vector3<f64>>,

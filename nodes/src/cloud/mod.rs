@@ -15,7 +15,9 @@ mod voxel;
 
 pub use colour_filter::away_from_colour;
 pub use nearest::Nearest;
-pub use normals::estimate_normals;
+pub use normals::{
+    PLANE_COVARIANCE_EPSILON, estimate_normals, plane_covariance, plane_covariances,
+};
 pub use on_surface::{OnSurface, SurfaceTest, markers_on_surface};
 pub use plane::{PLANE_COLUMNS, Plane, dominant_plane, off_table, plane_from_table, plane_table};
 pub use sample::{bumpy_ellipsoid, sample_mesh, sample_mesh_with_normals};

@@ -128,6 +128,16 @@ impl Nearest {
         *gaps.select_nth_unstable_by(mid, f64::total_cmp).1
     }
 
+    /// How many points the set holds.
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    /// Whether the set is empty (never: [`Nearest::new`] refuses one).
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
     /// Point `index` of the set, mm.
     pub fn point(&self, index: usize) -> Point3<f64> {
         self.points[index]

@@ -1,4 +1,4 @@
-//! Normal estimation by local PCA.
+//! Normals and local plane covariances by PCA of each point's neighbours.
 
 use super::Nearest;
 use nalgebra::{Matrix3, Point3, Vector3};
@@ -19,16 +19,7 @@ pub fn estimate_normals(
     points
         .par_iter()
         .map(|p| {
-            let idx = tree.knn(p, k.max(3));
-            let mean = idx
-                .iter()
-                .fold(Vector3::zeros(), |a, &i| a + points[i].coords)
-                / idx.len() as f64;
-            let cov = idx.iter().fold(Matrix3::zeros(), |a, &i| {
-                let d = points[i].coords - mean;
-                a + d * d.transpose()
-            });
-            let eig = cov.symmetric_eigen();
+            let eig = neighbourhood_scatter(&tree, p, k.max(3)).symmetric_eigen();
             let (min_i, _) = eig.eigenvalues.argmin();
             let mut n: Vector3<f64> = eig.eigenvectors.column(min_i).into();
             let towards = match viewpoint {
@@ -41,6 +32,45 @@ pub fn estimate_normals(
             n
         })
         .collect()
+}
+
+/// The scatter matrix (sum of outer products about their mean, mm²) of the
+/// `k` points of `tree` nearest `p`.
+fn neighbourhood_scatter(tree: &Nearest, p: &Point3<f64>, k: usize) -> Matrix3<f64> {
+    let idx = tree.knn(p, k);
+    let mean = idx
+        .iter()
+        .fold(Vector3::zeros(), |a, &i| a + tree.point(i).coords)
+        / idx.len() as f64;
+    idx.iter().fold(Matrix3::zeros(), |a, &i| {
+        let d = tree.point(i).coords - mean;
+        a + d * d.transpose()
+    })
+}
+
+/// Across-plane variance of a plane covariance, relative to its in-plane
+/// variance of 1 (Segal et al. 2009 and small_gicp use 1e-3).
+pub const PLANE_COVARIANCE_EPSILON: f64 = 1e-3;
+
+/// Each point's plane covariance (Segal et al. 2009, "plane-to-plane"):
+/// the directions of its `k` nearest points in `surface` (the cloud's own
+/// tree, or any sampling of the same surface), with the variance along the
+/// two directions of most spread set to 1 and across them to
+/// [`PLANE_COVARIANCE_EPSILON`]. Unitless: only the ratio matters to
+/// generalized ICP. Same frame as the points.
+pub fn plane_covariances(points: &[Point3<f64>], surface: &Nearest, k: usize) -> Vec<Matrix3<f64>> {
+    points
+        .par_iter()
+        .map(|p| plane_covariance(p, surface, k))
+        .collect()
+}
+
+/// One point's plane covariance (see [`plane_covariances`]).
+pub fn plane_covariance(p: &Point3<f64>, surface: &Nearest, k: usize) -> Matrix3<f64> {
+    let eig = neighbourhood_scatter(surface, p, k.max(3)).symmetric_eigen();
+    let (least, _) = eig.eigenvalues.argmin();
+    let n: Vector3<f64> = eig.eigenvectors.column(least).into();
+    Matrix3::identity() - n * n.transpose() * (1.0 - PLANE_COVARIANCE_EPSILON)
 }
 
 #[cfg(test)]
@@ -68,5 +98,24 @@ mod tests {
                 .zip(&pts)
                 .all(|(n, p)| n.dot(&(Point3::new(0.0, 0.0, 500.0) - p)) >= 0.0)
         );
+    }
+
+    #[test]
+    fn plane_covariances_are_flat_across_the_surface() {
+        // A tilted plane z = 0.5 x, sampled on a grid.
+        let points: Vec<Point3<f64>> = (0..400)
+            .map(|k| {
+                let (x, y) = ((k % 20) as f64, (k / 20) as f64);
+                Point3::new(x, y, 0.5 * x)
+            })
+            .collect();
+        let tree = Nearest::new(&points).unwrap();
+        let normal = Vector3::new(-0.5, 0.0, 1.0).normalize();
+        let along = Vector3::new(1.0, 0.0, 0.5).normalize();
+        for c in plane_covariances(&points, &tree, 12) {
+            assert!((normal.dot(&(c * normal)) - PLANE_COVARIANCE_EPSILON).abs() < 1e-9);
+            assert!((along.dot(&(c * along)) - 1.0).abs() < 1e-9);
+            assert!((Vector3::y().dot(&(c * Vector3::y())) - 1.0).abs() < 1e-9);
+        }
     }
 }

@@ -1,5 +1,6 @@
 //! Iterative closest point, point-to-point (Besl & McKay, with Umeyama's
-//! closed form) and point-to-plane (Chen & Medioni, linearised), with a maximum
+//! closed form), point-to-plane (Chen & Medioni, linearised) and generalized
+//! ICP (Segal et al., linearised; see the `gicp` module), with a maximum
 //! correspondence distance, trimming and robust kernels, optionally over a
 //! coarse-to-fine list of voxel sizes.
 //!
@@ -14,6 +15,7 @@
 //! along the surface, where point-to-plane converges; prefer point-to-plane for
 //! surfaces.
 
+use super::gicp::{self, GicpSurfaces};
 use super::procrustes::fit_from_moments;
 use crate::cloud::{Nearest, voxel_downsample};
 use fusegraph_plugin_api::derive::Choice;
@@ -23,13 +25,18 @@ use nalgebra::{
 use rayon::prelude::*;
 
 /// Error metric (also the `method` parameter of `register.icp`: its
-/// choices, in this order, are `point_to_plane` and `point_to_point`).
+/// choices, in this order, are `point_to_plane`, `point_to_point` and
+/// `gicp`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Choice)]
 pub enum IcpMethod {
     /// Distance along the target's normal.
     PointToPlane,
     /// Distance between points.
     PointToPoint,
+    /// Generalized ICP (Segal et al. 2009): the distance weighed by both
+    /// surfaces' local plane covariances (see the `gicp` module); needs no
+    /// normals.
+    Gicp,
 }
 
 /// Down-weighting of large residuals.
@@ -455,7 +462,87 @@ impl PairMoments {
 }
 
 /// Pairs per partial sum of the point-to-plane normal equations.
-const REDUCTION_CHUNK: usize = 4096;
+pub(crate) const REDUCTION_CHUNK: usize = 4096;
+
+/// The sums of point-to-plane's normal equations: `sum w a a^T`,
+/// `sum w a r` and `sum w`, with `r = n . (m - q)` each pair's distance
+/// along the target normal, `a = (m x n, n)` its row and `w` its kernel
+/// weight. Over fixed chunks in parallel, then the chunks in order: the same
+/// bits on any number of threads (rayon's own reduce splits by the thread
+/// count).
+fn point_to_plane_equations(
+    pairs: &Pairs,
+    moved: &[Point3<f64>],
+    target: &[Point3<f64>],
+    normals: &[Vector3<f64>],
+    kernel: Kernel,
+) -> (Matrix6<f64>, Vector6<f64>, f64) {
+    let partials: Vec<(Matrix6<f64>, Vector6<f64>, f64)> = pairs
+        .par_chunks(REDUCTION_CHUNK)
+        .map(|chunk| {
+            chunk.iter().fold(
+                (Matrix6::zeros(), Vector6::zeros(), 0.0),
+                |(ata, atb, total), &(i, j, _)| {
+                    let (m, q, n) = (moved[i], target[j], normals[j]);
+                    let r = n.dot(&(m - q));
+                    let w = kernel.weight(r);
+                    let c = m.coords.cross(&n);
+                    let row = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
+                    (
+                        ata + row * row.transpose() * w,
+                        atb + row * (r * w),
+                        total + w,
+                    )
+                },
+            )
+        })
+        .collect();
+    sum_partials(&partials)
+}
+
+/// Partial normal equations summed in order.
+pub(crate) fn sum_partials(
+    partials: &[(Matrix6<f64>, Vector6<f64>, f64)],
+) -> (Matrix6<f64>, Vector6<f64>, f64) {
+    partials.iter().fold(
+        (Matrix6::zeros(), Vector6::zeros(), 0.0),
+        |(a, b, t), (pa, pb, pt)| (a + pa, b + pb, t + pt),
+    )
+}
+
+/// The step (a small turn w and shift t, applied after `transform`) that
+/// solves linearised normal equations `ata x = -atb` of the surface pairs
+/// (whose kernel weights sum to `surface_weight`), with the landmarks'
+/// rows added: one per direction each is fitted along, of the linearised
+/// residual `m + w x m + t - q`. `None` where they do not pin the pose.
+fn linearised_step(
+    mut ata: Matrix6<f64>,
+    mut atb: Vector6<f64>,
+    surface_weight: f64,
+    anchors: Option<&Anchors>,
+    transform: &Isometry3<f64>,
+) -> Option<Isometry3<f64>> {
+    if let Some(anchors) = anchors {
+        let each = anchors.each(surface_weight);
+        for (k, (s, q)) in anchors.source.iter().zip(&anchors.target).enumerate() {
+            let m = transform * s;
+            let r = m - q;
+            for e in anchors.directions(k) {
+                let c = m.coords.cross(&e);
+                let row = Vector6::new(c.x, c.y, c.z, e.x, e.y, e.z);
+                ata += row * row.transpose() * each;
+                atb += row * (r.dot(&e) * each);
+            }
+        }
+    }
+    ata.cholesky().map(|c| {
+        let x = c.solve(&(-atb));
+        Isometry3::from_parts(
+            Translation3::new(x[3], x[4], x[5]),
+            UnitQuaternion::from_scaled_axis(Vector3::new(x[0], x[1], x[2])),
+        )
+    })
+}
 
 /// Registers `source` onto `target` (whose k-d tree is `tree`; normals needed
 /// for point-to-plane), starting from `init` (source frame -> target frame,
@@ -527,8 +614,12 @@ pub fn icp_anchored(
     }
     let mut transform = *init;
     let mut trace = Vec::new();
+    let gicp_surfaces = (p.method == IcpMethod::Gicp)
+        .then(|| GicpSurfaces::new(source, tree))
+        .transpose()?;
     for voxel in p.scales() {
         let (src, max_d) = p.scale(source, voxel);
+        let source_covariances = gicp_surfaces.as_ref().map(|g| g.source_covariances(&src));
         let mut previous: Option<(f64, f64)> = None;
         let mut cache = NearestCache::new(src.len(), tree);
         for _ in 0..p.max_iterations {
@@ -580,57 +671,23 @@ pub fn icp_anchored(
                 }
                 IcpMethod::PointToPlane => {
                     let normals = target_normals.expect("checked above");
-                    // Sums over fixed chunks in parallel, then the chunks in
-                    // order: the same bits on any number of threads (rayon's
-                    // own reduce splits by the thread count).
-                    // Each partial also sums the kernel weights: the
-                    // landmarks' weight is relative to the surface's.
-                    let partials: Vec<(Matrix6<f64>, Vector6<f64>, f64)> = pairs
-                        .par_chunks(REDUCTION_CHUNK)
-                        .map(|chunk| {
-                            chunk.iter().fold(
-                                (Matrix6::zeros(), Vector6::zeros(), 0.0),
-                                |(ata, atb, total), &(i, j, _)| {
-                                    let (m, q, n) = (moved[i], target[j], normals[j]);
-                                    let r = n.dot(&(m - q));
-                                    let w = p.kernel.weight(r);
-                                    let c = m.coords.cross(&n);
-                                    let row = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
-                                    (
-                                        ata + row * row.transpose() * w,
-                                        atb + row * (r * w),
-                                        total + w,
-                                    )
-                                },
-                            )
-                        })
-                        .collect();
-                    let (mut ata, mut atb, surface_weight) = partials.iter().fold(
-                        (Matrix6::zeros(), Vector6::zeros(), 0.0),
-                        |(a, b, t), (pa, pb, pt)| (a + pa, b + pb, t + pt),
+                    let (ata, atb, surface_weight) =
+                        point_to_plane_equations(&pairs, &moved, target, normals, p.kernel);
+                    linearised_step(ata, atb, surface_weight, anchors, &transform)
+                }
+                IcpMethod::Gicp => {
+                    let (ata, atb, surface_weight) = gicp::normal_equations(
+                        &pairs,
+                        &moved,
+                        target,
+                        source_covariances
+                            .as_deref()
+                            .expect("estimated for this scale"),
+                        gicp_surfaces.as_ref().expect("estimated above"),
+                        &transform.rotation.to_rotation_matrix(),
+                        p.kernel,
                     );
-                    if let Some(anchors) = anchors {
-                        // Each landmark: one row per direction it is fitted
-                        // along, of the linearised residual m + w x m + t - q.
-                        let each = anchors.each(surface_weight);
-                        for (k, (s, q)) in anchors.source.iter().zip(&anchors.target).enumerate() {
-                            let m = transform * s;
-                            let r = m - q;
-                            for e in anchors.directions(k) {
-                                let c = m.coords.cross(&e);
-                                let row = Vector6::new(c.x, c.y, c.z, e.x, e.y, e.z);
-                                ata += row * row.transpose() * each;
-                                atb += row * (r.dot(&e) * each);
-                            }
-                        }
-                    }
-                    ata.cholesky().map(|c| {
-                        let x = c.solve(&(-atb));
-                        Isometry3::from_parts(
-                            Translation3::new(x[3], x[4], x[5]),
-                            UnitQuaternion::from_scaled_axis(Vector3::new(x[0], x[1], x[2])),
-                        )
-                    })
+                    linearised_step(ata, atb, surface_weight, anchors, &transform)
                 }
             };
             let step = step.ok_or("degenerate pairs: the surfaces do not pin the transform")?;
@@ -922,6 +979,11 @@ mod tests {
     #[test]
     fn point_to_plane_converges_from_10_deg_and_10_mm_on_a_partial_view() {
         check(IcpMethod::PointToPlane, true, 10.0, 10.0);
+    }
+
+    #[test]
+    fn generalized_icp_converges_from_10_deg_and_10_mm_on_a_partial_view() {
+        check(IcpMethod::Gicp, true, 10.0, 10.0);
     }
 
     #[test]

@@ -6,6 +6,7 @@ pub(crate) mod convert;
 mod deformable;
 pub(crate) mod figures;
 mod frame_spread;
+mod gicp;
 mod icp;
 mod marker_merge;
 mod match_markers;
@@ -21,6 +22,7 @@ pub use deformable::{
     displacement_stats, fit_deformation,
 };
 pub use frame_spread::{Sighting, markers_frame_covariance};
+pub use gicp::GICP_NEIGHBOURS;
 pub use icp::{
     Anchors, IcpMethod, IcpParams, IcpResult, IcpStep, Kernel, icp, icp_anchored, normals_near,
     relative_information,

@@ -23,6 +23,7 @@
 //!   covariance), each direction's response of the pose is -H^-1 sum_i w_i
 //!   J_i (e_i . R dX_i), and their outer products add.
 
+use super::gicp::{GicpSurfaces, pair_information};
 use super::icp::{Anchors, IcpMethod, IcpParams, correspondences};
 use crate::cloud::Nearest;
 use nalgebra::{Isometry3, Matrix6, Point3, Vector3, Vector6};
@@ -130,14 +131,47 @@ pub fn pose_spread(
     let (src, max_d) = p.scale(source, voxel);
     let moved: Vec<Point3<f64>> = src.iter().map(|s| transform * s).collect();
     let (pairs, _) = correspondences(&moved, tree, max_d, p.trim_ratio, None)?;
+    let gicp = match p.method {
+        IcpMethod::Gicp => {
+            let surfaces = GicpSurfaces::new(source, tree)?;
+            let source_covariances = surfaces.source_covariances(&src);
+            Some((surfaces, source_covariances))
+        }
+        _ => None,
+    };
+    let rotation = transform.rotation.to_rotation_matrix();
     let mut terms: Vec<Term> = Vec::with_capacity(pairs.len());
-    for &(i, j, _) in &pairs {
+    for &(i, j, distance) in &pairs {
         let q = target[j];
-        let directions: Vec<Vector3<f64>> = match (p.method, target_normals) {
-            (IcpMethod::PointToPlane, Some(n)) => vec![n[j]],
-            _ => vec![Vector3::x(), Vector3::y(), Vector3::z()],
+        // Each term's direction and weight, with None to weigh the residual
+        // along it by the kernel (GICP weighs the pair by its distance).
+        let directions: Vec<(Vector3<f64>, Option<f64>)> = match (&gicp, target_normals) {
+            (Some((surfaces, source_covariances)), _) => {
+                // The pair's information split along its eigenvectors: the
+                // terms' rows then sum to J^T W J, as the fit's.
+                let info = pair_information(
+                    surfaces.target_covariance(j),
+                    &source_covariances[i],
+                    &rotation,
+                )
+                .ok_or("a pair's covariances are singular")?;
+                let eig = info.symmetric_eigen();
+                let w = p.kernel.weight(distance);
+                (0..3)
+                    .map(|k| {
+                        (
+                            eig.eigenvectors.column(k).into(),
+                            Some(w * eig.eigenvalues[k]),
+                        )
+                    })
+                    .collect()
+            }
+            (None, Some(n)) if p.method == IcpMethod::PointToPlane => vec![(n[j], None)],
+            _ => [Vector3::x(), Vector3::y(), Vector3::z()]
+                .map(|e| (e, None))
+                .to_vec(),
         };
-        for e in directions {
+        for (e, weight) in directions {
             let residual = e.dot(&(moved[i] - q));
             terms.push(Term {
                 origin: Origin::Surface(i),
@@ -145,7 +179,7 @@ pub fn pose_spread(
                 anchor: q,
                 direction: e,
                 residual,
-                weight: p.kernel.weight(residual),
+                weight: weight.unwrap_or_else(|| p.kernel.weight(residual)),
             });
         }
     }
@@ -155,7 +189,7 @@ pub fn pose_spread(
         for (k, (s, q)) in a.source.iter().zip(&a.target).enumerate() {
             let m = transform * s;
             let directions = match p.method {
-                IcpMethod::PointToPlane => a.directions(k),
+                IcpMethod::PointToPlane | IcpMethod::Gicp => a.directions(k),
                 IcpMethod::PointToPoint => vec![Vector3::x(), Vector3::y(), Vector3::z()],
             };
             for e in directions {
@@ -458,8 +492,12 @@ mod tests {
     }
 
     fn params() -> IcpParams {
+        params_for(IcpMethod::PointToPlane)
+    }
+
+    fn params_for(method: IcpMethod) -> IcpParams {
         IcpParams {
-            method: IcpMethod::PointToPlane,
+            method,
             max_distance_mm: 5.0,
             trim_ratio: 1.0,
             kernel: Kernel::None,
@@ -499,16 +537,26 @@ mod tests {
         block_mm: f64,
         field: Option<&ShiftField>,
     ) -> (crate::register::IcpResult, PoseSpread) {
+        fit_and_spread_by(IcpMethod::PointToPlane, source, block_mm, field)
+    }
+
+    fn fit_and_spread_by(
+        method: IcpMethod,
+        source: &[Point3<f64>],
+        block_mm: f64,
+        field: Option<&ShiftField>,
+    ) -> (crate::register::IcpResult, PoseSpread) {
         let (bowl, normals, tree) = bowl();
         let start = Isometry3::identity();
-        let r = icp(source, &bowl, Some(&normals), &tree, &start, &params()).unwrap();
+        let params = params_for(method);
+        let r = icp(source, &bowl, Some(&normals), &tree, &start, &params).unwrap();
         let s = pose_spread(
             source,
             &bowl,
             Some(&normals),
             &tree,
             &r.transform,
-            &params(),
+            &params,
             None,
             block_mm,
             field,
@@ -517,17 +565,23 @@ mod tests {
         (r, s)
     }
 
-    /// Monte Carlo: the spread of a target mapped back through 300 ICP
-    /// fits of noisy sources against what each fit's own spread predicts.
+    /// Monte Carlo: the spread of a target mapped back through 300
+    /// point-to-plane fits of noisy sources against what each fit's own
+    /// spread predicts.
     fn check(patch: usize, block_mm: f64) -> (f64, f64, f64) {
+        check_by(IcpMethod::PointToPlane, patch, block_mm, 300)
+    }
+
+    /// [`check`] with `method` over `fits` fits.
+    fn check_by(method: IcpMethod, patch: usize, block_mm: f64, fits: u64) -> (f64, f64, f64) {
         let (bowl, normals, _) = bowl();
         let q = Point3::new(5.0, -10.0, -60.0);
         let mut mapped = Vec::new();
         let mut predicted = 0.0;
         let mut textbook = 0.0;
-        for seed in 0..300 {
+        for seed in 0..fits {
             let source = noisy(&bowl, &normals, patch, seed);
-            let (r, s) = fit_and_spread(&source, block_mm, None);
+            let (r, s) = fit_and_spread_by(method, &source, block_mm, None);
             predicted += mapped_point_covariance(&r.transform, &s.covariance, &q).trace();
             textbook += mapped_point_covariance(&r.transform, &s.independent, &q).trace();
             mapped.push(r.transform.inverse() * q);
@@ -566,6 +620,22 @@ mod tests {
         // spread); 20 mm blocks see it.
         let (observed, blocks, textbook) = check(5, 20.0);
         assert!(textbook < 0.4 * observed, "{textbook} vs {observed}");
+        assert!(
+            (blocks / observed - 1.0).abs() < 0.25,
+            "{blocks} vs {observed}"
+        );
+    }
+
+    #[test]
+    fn generalized_icps_spread_is_predicted_by_its_own_terms() {
+        // GICP weighs a pair by both surfaces' plane covariances, not by
+        // the noise's spread: the sandwich still predicts the spread, from
+        // each pair's information split along its eigenvectors.
+        let (observed, blocks, textbook) = check_by(IcpMethod::Gicp, 1, 8.0, 120);
+        assert!(
+            (textbook / observed - 1.0).abs() < 0.2,
+            "{textbook} vs {observed}"
+        );
         assert!(
             (blocks / observed - 1.0).abs() < 0.25,
             "{blocks} vs {observed}"

@@ -491,10 +491,6 @@ mod tests {
         (points, normals, tree)
     }
 
-    fn params() -> IcpParams {
-        params_for(IcpMethod::PointToPlane)
-    }
-
     fn params_for(method: IcpMethod) -> IcpParams {
         IcpParams {
             method,

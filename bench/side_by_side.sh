@@ -47,6 +47,14 @@ for round in $(seq "$rounds"); do
   RAYON_NUM_THREADS=1 "$fg" bench icp --points 100000 --iterations 30 --out "$work/icp" | grep -E "ms per iteration" | sed 's/^/ours 1 thread:/'
   "$py" "$peers" --repeat 3 smallgicp "$work/icp/source.ply" "$work/icp/target.ply" --iters 30 --threads 1 | sed 's/^/1 thread: /'
   "$py" "$peers" --repeat 3 smallgicp "$work/icp/source.ply" "$work/icp/target.ply" --iters 30 --threads 2 | sed 's/^/2 threads: /'
+  # GICP: small_gicp's converges in about 6 iterations, so both are timed
+  # over 7 (and ours over 1, to take its first iteration apart).
+  for threads in 1 2; do
+    for n in 1 7; do
+      RAYON_NUM_THREADS=$threads "$fg" bench icp --points 100000 --iterations $n --out "$work/icp7" | grep -E "Gicp|covariances" | sed "s/^/ours $threads thread(s), $n iterations:/"
+    done
+    "$py" bench/gicp_peer.py "$work/icp7" --iters 7 --threads $threads
+  done
   # SGM: the phantom's 800 x 600 pair (128 disparities), cones and teddy,
   # ours on one thread and two, OpenCV's StereoSGBM (single-threaded) on the
   # very pairs ours wrote.

@@ -7,7 +7,7 @@
 //! alone. Linearised in a small turn w and shift t applied after the
 //! transform (`m -> m + w x m + t`), as point-to-plane is.
 
-use super::icp::{Kernel, Pairs, REDUCTION_CHUNK, sum_partials};
+use super::pairs::{Kernel, Pairs, REDUCTION_CHUNK, sum_partials};
 use crate::cloud::{Nearest, plane_covariance, plane_covariances};
 use nalgebra::{Matrix3, Matrix3x6, Matrix6, Point3, Rotation3, Vector6};
 use rayon::prelude::*;

@@ -16,6 +16,8 @@
 //! surfaces.
 
 use super::gicp::{self, GicpSurfaces};
+pub use super::pairs::Kernel;
+use super::pairs::{Pairs, REDUCTION_CHUNK, sum_partials};
 use super::procrustes::fit_from_moments;
 use crate::cloud::{Nearest, voxel_downsample};
 use fusegraph_plugin_api::derive::Choice;
@@ -37,40 +39,6 @@ pub enum IcpMethod {
     /// surfaces' local plane covariances (see the `gicp` module); needs no
     /// normals.
     Gicp,
-}
-
-/// Down-weighting of large residuals.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Kernel {
-    /// Plain least squares.
-    None,
-    /// Huber with threshold k (mm).
-    Huber(f64),
-    /// Tukey's biweight with cut-off c (mm).
-    Tukey(f64),
-}
-
-impl Kernel {
-    pub(crate) fn weight(self, r: f64) -> f64 {
-        let r = r.abs();
-        match self {
-            Kernel::None => 1.0,
-            Kernel::Huber(k) => {
-                if r <= k {
-                    1.0
-                } else {
-                    k / r
-                }
-            }
-            Kernel::Tukey(c) => {
-                if r >= c {
-                    0.0
-                } else {
-                    (1.0 - (r / c).powi(2)).powi(2)
-                }
-            }
-        }
-    }
 }
 
 /// ICP settings.
@@ -113,9 +81,6 @@ impl IcpParams {
         (points, self.max_distance_mm.max(2.0 * voxel_mm))
     }
 }
-
-/// Pairs of (source index, target index, distance mm).
-pub(crate) type Pairs = Vec<(usize, usize, f64)>;
 
 /// Each source point's nearest target point from its last search, reused
 /// while it is provably still the nearest. Searched from `at` with the
@@ -461,9 +426,6 @@ impl PairMoments {
     }
 }
 
-/// Pairs per partial sum of the point-to-plane normal equations.
-pub(crate) const REDUCTION_CHUNK: usize = 4096;
-
 /// The sums of point-to-plane's normal equations: `sum w a a^T`,
 /// `sum w a r` and `sum w`, with `r = n . (m - q)` each pair's distance
 /// along the target normal, `a = (m x n, n)` its row and `w` its kernel
@@ -498,16 +460,6 @@ fn point_to_plane_equations(
         })
         .collect();
     sum_partials(&partials)
-}
-
-/// Partial normal equations summed in order.
-pub(crate) fn sum_partials(
-    partials: &[(Matrix6<f64>, Vector6<f64>, f64)],
-) -> (Matrix6<f64>, Vector6<f64>, f64) {
-    partials.iter().fold(
-        (Matrix6::zeros(), Vector6::zeros(), 0.0),
-        |(a, b, t), (pa, pb, pt)| (a + pa, b + pb, t + pt),
-    )
 }
 
 /// The step (a small turn w and shift t, applied after `transform`) that

@@ -12,6 +12,7 @@ mod marker_merge;
 mod match_markers;
 mod multiview;
 pub mod ops;
+mod pairs;
 mod pose_spread;
 mod procrustes;
 mod target_error;

@@ -1,0 +1,57 @@
+//! What every ICP variant shares: the pairs of source and target points,
+//! the robust kernels that weigh them, and sums over them in a fixed order
+//! (the same bits on any number of threads).
+
+use nalgebra::{Matrix6, Vector6};
+
+/// Pairs of (source index, target index, distance mm).
+pub(crate) type Pairs = Vec<(usize, usize, f64)>;
+
+/// Down-weighting of large residuals.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Kernel {
+    /// Plain least squares.
+    None,
+    /// Huber with threshold k (mm).
+    Huber(f64),
+    /// Tukey's biweight with cut-off c (mm).
+    Tukey(f64),
+}
+
+impl Kernel {
+    /// The weight of a residual of `r` mm.
+    pub(crate) fn weight(self, r: f64) -> f64 {
+        let r = r.abs();
+        match self {
+            Kernel::None => 1.0,
+            Kernel::Huber(k) => {
+                if r <= k {
+                    1.0
+                } else {
+                    k / r
+                }
+            }
+            Kernel::Tukey(c) => {
+                if r >= c {
+                    0.0
+                } else {
+                    (1.0 - (r / c).powi(2)).powi(2)
+                }
+            }
+        }
+    }
+}
+
+/// Pairs per partial sum: each chunk is summed on its own, then the chunks
+/// in order, whatever the thread count (rayon's own reduce splits by it).
+pub(crate) const REDUCTION_CHUNK: usize = 4096;
+
+/// Partial normal equations summed in order.
+pub(crate) fn sum_partials(
+    partials: &[(Matrix6<f64>, Vector6<f64>, f64)],
+) -> (Matrix6<f64>, Vector6<f64>, f64) {
+    partials.iter().fold(
+        (Matrix6::zeros(), Vector6::zeros(), 0.0),
+        |(a, b, t), (pa, pb, pt)| (a + pa, b + pb, t + pt),
+    )
+}

@@ -688,6 +688,7 @@ fn scheduler(nodes: usize, jobs: usize, repeat: usize, registry: &Registry) -> a
             jobs,
             progress: false,
             provenance: Default::default(),
+            keep_outputs: false,
         };
         let t = Instant::now();
         let first = run(

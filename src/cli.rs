@@ -482,6 +482,7 @@ fn execute(cli: Cli, registry: &Registry, command_line: &[String]) -> anyhow::Re
                 jobs,
                 progress: std::io::stderr().is_terminal() && cli.verbose == 0,
                 provenance: provenance(command_line, &edit.sets),
+                keep_outputs: false,
             };
             let outcome = run(&valid, &options, &MemoryCache::new()).map_err(|e| match e {
                 RunError::Graph(g) => anyhow::Error::new(g),

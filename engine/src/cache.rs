@@ -18,7 +18,7 @@ use crate::value::{Reader, Value, Writer, encode_value};
 use std::collections::{BTreeMap, HashMap};
 use std::io;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, Weak};
 
 /// The cache a graph file uses by default: `.fusegraph/cache` beside it.
 pub fn default_dir(graph_file: &Path) -> PathBuf {
@@ -58,10 +58,16 @@ impl CacheEntry {
     }
 }
 
-/// Results by key, in memory.
+/// Results by key, in memory: the entries something still holds (a run's
+/// nodes whose consumers have not all run, a caller's [`RunOutcome`]). It
+/// keeps none alive itself, so a long run or a sweep of many variants does
+/// not hold every value it ever made; what was released is read back from
+/// the disk cache.
+///
+/// [`RunOutcome`]: crate::schedule::RunOutcome
 #[derive(Debug, Default)]
 pub struct MemoryCache {
-    entries: Mutex<HashMap<NodeKey, Arc<CacheEntry>>>,
+    entries: Mutex<HashMap<NodeKey, Weak<CacheEntry>>>,
 }
 
 impl MemoryCache {
@@ -70,21 +76,20 @@ impl MemoryCache {
         Self::default()
     }
 
-    /// The entry for `key`.
+    /// The entry for `key`, while something holds it.
     pub fn get(&self, key: &NodeKey) -> Option<Arc<CacheEntry>> {
         self.entries
             .lock()
             .unwrap_or_else(|p| p.into_inner())
             .get(key)
-            .cloned()
+            .and_then(Weak::upgrade)
     }
 
-    /// Stores the entry for `key`.
-    pub fn insert(&self, key: NodeKey, entry: Arc<CacheEntry>) {
-        self.entries
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .insert(key, entry);
+    /// Stores the entry for `key` (and forgets entries no longer held).
+    pub fn insert(&self, key: NodeKey, entry: &Arc<CacheEntry>) {
+        let mut entries = self.entries.lock().unwrap_or_else(|p| p.into_inner());
+        entries.retain(|_, held| held.strong_count() > 0);
+        entries.insert(key, Arc::downgrade(entry));
     }
 }
 

@@ -32,10 +32,17 @@ pub struct RunOptions {
     /// commit, rustc, the command line); the report's `provenance` adds the
     /// engine's part (see [`crate::provenance`]).
     pub provenance: serde_json::Map<String, serde_json::Value>,
+    /// Keep every node's outputs in memory to the end of the run (in
+    /// [`RunOutcome::results`]); otherwise each node's are released once
+    /// the last node that reads them has run, so the run's peak memory is
+    /// what is in flight, not everything it made (the disk cache keeps
+    /// them all).
+    pub keep_outputs: bool,
 }
 
 /// What a run produced: the report, and each node's outputs (`None` where it
-/// failed or was skipped), indexed like the graph's nodes.
+/// failed or was skipped, or was released: see [`RunOptions::keep_outputs`]),
+/// indexed like the graph's nodes.
 pub struct RunOutcome {
     /// The report.
     pub report: RunReport,
@@ -62,11 +69,17 @@ pub fn run_graph(
     let started = std::time::SystemTime::now();
     let n = graph.nodes.len();
     let mut successors: Vec<BTreeSet<usize>> = vec![BTreeSet::new(); n];
+    let mut predecessors: Vec<BTreeSet<usize>> = vec![BTreeSet::new(); n];
     for (i, node) in graph.nodes.iter().enumerate() {
         for e in &node.inputs {
             successors[e.from].insert(i);
+            predecessors[i].insert(e.from);
         }
     }
+    let readers_left: Vec<AtomicUsize> = successors
+        .iter()
+        .map(|s| AtomicUsize::new(s.len()))
+        .collect();
     let pending: Vec<AtomicUsize> = graph
         .nodes
         .iter()
@@ -99,8 +112,11 @@ pub fn run_graph(
         options,
         memory,
         successors,
+        predecessors,
         pending,
-        slots: (0..n).map(|_| OnceLock::new()).collect(),
+        readers_left,
+        reports: (0..n).map(|_| OnceLock::new()).collect(),
+        entries: (0..n).map(|_| Mutex::new(None)).collect(),
         running: Mutex::new(BTreeSet::new()),
         progress,
     };
@@ -124,8 +140,8 @@ pub fn run_graph(
         })
     });
     exec.progress.finish_and_clear();
-    let slots: Vec<Slot> = exec
-        .slots
+    let reports: Vec<NodeReport> = exec
+        .reports
         .into_iter()
         .map(|s| s.into_inner().expect("every node was executed"))
         .collect();
@@ -135,15 +151,19 @@ pub fn run_graph(
         nodes: graph
             .nodes
             .iter()
-            .zip(&slots)
-            .map(|(node, slot)| (node.id.clone(), slot.report.clone()))
+            .map(|node| node.id.clone())
+            .zip(reports)
             .collect(),
         total_ms: start.elapsed().as_secs_f64() * 1e3,
         provenance: crate::provenance::provenance(graph, started, &options.provenance),
     };
     Ok(RunOutcome {
         report,
-        results: slots.into_iter().map(|s| s.entry).collect(),
+        results: exec
+            .entries
+            .into_iter()
+            .map(|e| e.into_inner().unwrap_or_else(|p| p.into_inner()))
+            .collect(),
     })
 }
 
@@ -158,8 +178,14 @@ struct Executor<'a> {
     options: &'a RunOptions,
     memory: &'a MemoryCache,
     successors: Vec<BTreeSet<usize>>,
+    predecessors: Vec<BTreeSet<usize>>,
     pending: Vec<AtomicUsize>,
-    slots: Vec<OnceLock<Slot>>,
+    /// Each node's readers (distinct successors) that have not run yet.
+    readers_left: Vec<AtomicUsize>,
+    reports: Vec<OnceLock<NodeReport>>,
+    /// Each node's outputs, set before its successors start; `None` where
+    /// it produced none, or once released.
+    entries: Vec<Mutex<Option<Arc<CacheEntry>>>>,
     running: Mutex<BTreeSet<String>>,
     progress: ProgressBar,
 }
@@ -167,13 +193,30 @@ struct Executor<'a> {
 impl<'a> Executor<'a> {
     fn execute<'s>(&'s self, i: usize, scope: &rayon::Scope<'s>) {
         let slot = self.compute(i);
-        let _ = self.slots[i].set(slot);
+        *self.entry(i) = slot.entry;
+        let _ = self.reports[i].set(slot.report);
+        if !self.options.keep_outputs {
+            // This node has read its inputs: an upstream node it was the
+            // last reader of is released, and so is this one if none reads it.
+            for &up in &self.predecessors[i] {
+                if self.readers_left[up].fetch_sub(1, Ordering::AcqRel) == 1 {
+                    self.entry(up).take();
+                }
+            }
+            if self.successors[i].is_empty() {
+                self.entry(i).take();
+            }
+        }
         self.progress.inc(1);
         for &next in &self.successors[i] {
             if self.pending[next].fetch_sub(1, Ordering::AcqRel) == 1 {
                 scope.spawn(move |s| self.execute(next, s));
             }
         }
+    }
+
+    fn entry(&self, i: usize) -> std::sync::MutexGuard<'_, Option<Arc<CacheEntry>>> {
+        self.entries[i].lock().unwrap_or_else(|p| p.into_inner())
     }
 
     fn set_running(&self, id: &str, running: bool) {
@@ -204,8 +247,8 @@ impl<'a> Executor<'a> {
 
         let mut inputs = Inputs::default();
         for e in &node.inputs {
-            let upstream = self.slots[e.from].get().expect("upstream finished first");
-            let Some(entry) = &upstream.entry else {
+            let upstream = self.entry(e.from).clone();
+            let Some(entry) = &upstream else {
                 let why = format!(
                     "upstream node `{}` did not produce results",
                     self.graph.nodes[e.from].id
@@ -314,7 +357,7 @@ impl<'a> Executor<'a> {
             figures: results.figures.into(),
             notes: results.notes.into(),
         });
-        self.memory.insert(key, entry.clone());
+        self.memory.insert(key, &entry);
         if let Some(disk) = &self.options.cache
             && let Err(e) = disk.store(&key, &entry)
         {
@@ -415,7 +458,7 @@ impl<'a> Executor<'a> {
             return None;
         }
         let entry = Arc::new(entry);
-        self.memory.insert(*key, entry.clone());
+        self.memory.insert(*key, &entry);
         Some(entry)
     }
 }

@@ -6,8 +6,10 @@ mod common;
 use common::{registry, run_file, statuses, with_status, write_graph};
 use fusegraph_engine::NodeStatus::{Cached, Failed, Ran, Skipped};
 use fusegraph_engine::cache::DiskCache;
+use fusegraph_engine::cache::MemoryCache;
 use fusegraph_engine::key::node_keys;
-use fusegraph_engine::session::load_graph;
+use fusegraph_engine::schedule::{RunOptions, RunOutcome};
+use fusegraph_engine::session::{load_graph, run};
 
 /// a -> b -> c, and an independent branch x -> d.
 const DIAMOND: &str = r#"
@@ -45,6 +47,53 @@ fn scalar(outcome: &fusegraph_engine::schedule::RunOutcome, node: usize, port: &
         fusegraph_engine::Value::Scalar(v) => **v,
         other => panic!("{other:?}"),
     }
+}
+
+/// The diamond run with `keep_outputs` as given, without a disk cache,
+/// sharing `memory` between runs.
+fn run_in_memory(
+    reg: &fusegraph_engine::Registry,
+    graph: &std::path::Path,
+    out: &std::path::Path,
+    memory: &MemoryCache,
+    keep_outputs: bool,
+) -> RunOutcome {
+    let graph = load_graph(graph, &[], reg).unwrap();
+    let options = RunOptions {
+        out_dir: out.to_path_buf(),
+        cache: None,
+        jobs: 2,
+        progress: false,
+        provenance: Default::default(),
+        keep_outputs,
+    };
+    run(&graph, &options, memory).unwrap()
+}
+
+#[test]
+fn released_outputs_are_gone_from_memory_and_the_outcome_only() {
+    let t = tempfile::tempdir().unwrap();
+    let (reg, counters) = registry();
+    let g = write_graph(t.path(), "g.toml", DIAMOND);
+    let memory = MemoryCache::new();
+    // Released as their last readers ran: the outcome holds none, and the
+    // memory cache, which keeps nothing alive itself, cannot give them to
+    // a second run.
+    let released = run_in_memory(&reg, &g, &t.path().join("out"), &memory, false);
+    assert!(released.report.succeeded());
+    assert!(released.results.iter().all(Option::is_none));
+    let again = run_in_memory(&reg, &g, &t.path().join("out"), &memory, true);
+    assert_eq!(with_status(&again, Ran), ["a", "b", "c", "d", "x"]);
+    assert_eq!(counters.total(), 10);
+    // Kept: the outcome holds them all, and while it lives a second run
+    // finds them in memory.
+    assert_eq!(scalar(&again, 2, "value"), 14.0);
+    let third = run_in_memory(&reg, &g, &t.path().join("out"), &memory, true);
+    assert_eq!(with_status(&third, Cached), ["a", "b", "c", "d", "x"]);
+    assert_eq!(counters.total(), 10);
+    drop((again, third));
+    let fourth = run_in_memory(&reg, &g, &t.path().join("out"), &memory, false);
+    assert_eq!(with_status(&fourth, Ran), ["a", "b", "c", "d", "x"]);
 }
 
 #[test]

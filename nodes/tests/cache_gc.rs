@@ -23,6 +23,7 @@ fn run_graph(graph: &str, sets: &[&str], cache: &Path, out: &Path) -> RunReport 
         jobs: 2,
         progress: false,
         provenance: Default::default(),
+        keep_outputs: false,
     };
     run(&valid, &options, &MemoryCache::new())
         .expect("the run finishes")

@@ -19,6 +19,7 @@ fn statuses(registry: &Registry, dir: &Path) -> BTreeMap<String, NodeStatus> {
         jobs: 1,
         progress: false,
         provenance: Default::default(),
+        keep_outputs: false,
     };
     let outcome = run(&valid, &options, &MemoryCache::new()).expect("the run finishes");
     assert!(outcome.report.succeeded());

@@ -50,6 +50,7 @@ fn mri_graph_writes_the_stretched_volume_and_the_otsu_mask_with_their_geometry()
         jobs: 0,
         progress: false,
         provenance: Default::default(),
+        keep_outputs: true,
     };
     let outcome = run(&graph, &options, &MemoryCache::new()).unwrap();
     assert!(outcome.report.succeeded(), "{:?}", outcome.report);
@@ -107,6 +108,7 @@ fn the_phantom_skin_surface_has_no_self_intersections() {
             jobs: 0,
             progress: false,
             provenance: Default::default(),
+            keep_outputs: true,
         };
         let outcome = run(&graph, &options, &MemoryCache::new()).unwrap();
         assert!(outcome.report.succeeded(), "{:?}", outcome.report);

@@ -228,6 +228,7 @@ fn run<'py>(
         jobs,
         progress: false,
         provenance: python_provenance(py, &sets),
+        keep_outputs: true,
     };
     let outcome = py
         .detach(|| fusegraph_engine::session::run(&valid, &options, &MemoryCache::new()))

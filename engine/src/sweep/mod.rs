@@ -237,6 +237,7 @@ pub fn run_sweep(
                 p.insert("overrides".into(), overrides.into());
                 p
             },
+            keep_outputs: false,
         };
         let start = std::time::Instant::now();
         let outcome = run(&graphs[i], &run_options, &memory);

@@ -273,6 +273,8 @@ pub fn run_file(
         jobs: 2,
         progress: false,
         provenance: Default::default(),
+        // The tests read every node's outputs from the outcome.
+        keep_outputs: true,
     };
     match run(&graph, &options, &MemoryCache::new()) {
         Ok(o) => Ok(o),

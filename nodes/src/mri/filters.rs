@@ -19,16 +19,30 @@ pub fn gaussian_smooth(
     spacing_mm: [f64; 3],
     sigma_mm: f64,
 ) -> Vec<f32> {
-    let mut out = data.to_vec();
+    gaussian_smooth_owned(data.to_vec(), dims, spacing_mm, sigma_mm)
+}
+
+/// [`gaussian_smooth`] of a volume the caller hands over: it is smoothed in
+/// its own memory with one scratch volume, so at most two volumes are held,
+/// not three.
+pub fn gaussian_smooth_owned(
+    mut data: Vec<f32>,
+    dims: [usize; 3],
+    spacing_mm: [f64; 3],
+    sigma_mm: f64,
+) -> Vec<f32> {
+    let mut scratch = Vec::new();
     for (axis, spacing) in spacing_mm.iter().enumerate() {
         let sigma_vox = sigma_mm / spacing.max(1e-9);
         if sigma_vox < 1e-3 {
             continue;
         }
         let kernel = gaussian_kernel(sigma_vox);
-        out = convolve_axis(&out, dims, axis, &kernel);
+        scratch.resize(data.len(), 0.0);
+        convolve_axis_into(&data, &mut scratch, dims, axis, &kernel);
+        std::mem::swap(&mut data, &mut scratch);
     }
-    out
+    data
 }
 
 /// A normalised Gaussian kernel of `sigma` samples, radius ceil(3 sigma).
@@ -44,10 +58,19 @@ fn gaussian_kernel(sigma: f64) -> Vec<f32> {
 /// `data` convolved along one axis with the odd-length `kernel`, borders
 /// clamped. Along j and k whole rows are weighted and summed (contiguous,
 /// so the compiler vectorises them).
-fn convolve_axis(data: &[f32], dims: [usize; 3], axis: usize, kernel: &[f32]) -> Vec<f32> {
+fn convolve_axis_into(
+    data: &[f32],
+    out: &mut [f32],
+    dims: [usize; 3],
+    axis: usize,
+    kernel: &[f32],
+) {
     let [nx, ny, nz] = dims;
     let radius = (kernel.len() / 2) as isize;
-    let mut out = vec![0.0f32; data.len()];
+    // Along j and k the taps accumulate into the output.
+    if axis != 0 {
+        out.par_iter_mut().for_each(|o| *o = 0.0);
+    }
     out.par_chunks_mut(nx * ny)
         .enumerate()
         .for_each(|(k, slice)| {
@@ -93,15 +116,22 @@ fn convolve_axis(data: &[f32], dims: [usize; 3], axis: usize, kernel: &[f32]) ->
                 }
             }
         });
-    out
 }
 
 /// The Laplacian (sum of second central differences, per mm^2) of a volume;
 /// zero on the border voxels.
 pub fn laplacian(data: &[f32], dims: [usize; 3], spacing_mm: [f64; 3]) -> Vec<f32> {
+    let mut out = vec![0.0f32; data.len()];
+    laplacian_into(data, &mut out, dims, spacing_mm);
+    out
+}
+
+/// [`laplacian`] written into `out` (a volume of the same size, whose
+/// memory is reused).
+pub fn laplacian_into(data: &[f32], out: &mut [f32], dims: [usize; 3], spacing_mm: [f64; 3]) {
     let [nx, ny, nz] = dims;
     let inv: [f32; 3] = std::array::from_fn(|a| (1.0 / (spacing_mm[a] * spacing_mm[a])) as f32);
-    let mut out = vec![0.0f32; data.len()];
+    out.par_iter_mut().for_each(|o| *o = 0.0);
     out.par_chunks_mut(nx * ny)
         .enumerate()
         .for_each(|(k, slice)| {
@@ -118,7 +148,6 @@ pub fn laplacian(data: &[f32], dims: [usize; 3], spacing_mm: [f64; 3]) -> Vec<f3
                 }
             }
         });
-    out
 }
 
 /// For every voxel of `mask` (non-zero = inside), its Euclidean distance in

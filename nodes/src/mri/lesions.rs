@@ -32,7 +32,10 @@
 //!
 //! Written here: no Rust crate detects blobs in volumes.
 
-use super::filters::{distance_to_outside_mm, fill_holes, gaussian_smooth, laplacian};
+use super::filters::{
+    distance_to_outside_mm, fill_holes, gaussian_smooth, gaussian_smooth_owned, laplacian,
+    laplacian_into,
+};
 use rayon::prelude::*;
 
 /// A detection must stand out from the noise by this many standard errors:
@@ -180,20 +183,23 @@ pub fn detect_lesions(
     let mut candidates: Vec<(f32, usize, usize)> = Vec::new();
     for step in 0..=sigmas.len() {
         if let Some(&s) = sigmas.get(step) {
-            smooth = gaussian_smooth(
-                &smooth,
+            smooth = gaussian_smooth_owned(
+                smooth,
                 dims,
                 spacing_mm,
                 (s * s - smoothed_to * smoothed_to).sqrt(),
             );
             smoothed_to = s;
-            let mut l = laplacian(&smooth, dims, spacing_mm);
+            // The oldest scale is done with: its memory takes the new one.
+            let mut l = if window.len() == 3 {
+                window.pop_front().expect("three held")
+            } else {
+                vec![0.0; n]
+            };
+            laplacian_into(&smooth, &mut l, dims, spacing_mm);
             let norm = (s * s) as f32 * sign;
             l.par_iter_mut().for_each(|v| *v *= norm);
             window.push_back(l);
-            if window.len() > 3 {
-                window.pop_front();
-            }
         } else if window.len() == 3 {
             // The last scale has no larger neighbour: only the one below.
             window.pop_front();

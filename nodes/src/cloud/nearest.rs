@@ -188,13 +188,9 @@ mod tests {
     /// the radius and never above the true second distance.
     #[test]
     fn nearest_two_within_agrees_with_the_full_search() {
-        let mut state = 12345u64;
-        let mut uniform = || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(12345);
+        let mut uniform = || rng.random::<f64>();
         let points: Vec<Point3<f64>> = (0..2000)
             .map(|_| Point3::new(uniform() * 50.0, uniform() * 50.0 + 100.0, uniform() * 5.0))
             .collect();

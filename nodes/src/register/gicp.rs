@@ -7,10 +7,9 @@
 //! alone. Linearised in a small turn w and shift t applied after the
 //! transform (`m -> m + w x m + t`), as point-to-plane is.
 
-use super::pairs::{Kernel, Pairs, REDUCTION_CHUNK, sum_partials};
+use super::pairs::{Kernel, Pairs, normal_equations_over};
 use crate::cloud::{Nearest, plane_covariance, plane_covariances};
 use nalgebra::{Matrix3, Matrix3x6, Matrix6, Point3, Rotation3, Vector6};
-use rayon::prelude::*;
 use std::sync::OnceLock;
 
 /// Neighbours whose spread gives a point's plane covariance (Segal et al.
@@ -94,32 +93,17 @@ pub(crate) fn normal_equations(
     rotation: &Rotation3<f64>,
     kernel: Kernel,
 ) -> (Matrix6<f64>, Vector6<f64>, f64) {
-    let partials: Vec<(Matrix6<f64>, Vector6<f64>, f64)> = pairs
-        .par_chunks(REDUCTION_CHUNK)
-        .map(|chunk| {
-            chunk.iter().fold(
-                (Matrix6::zeros(), Vector6::zeros(), 0.0),
-                |(jtwj, jtwd, total), &(i, j, distance)| {
-                    let w = kernel.weight(distance);
-                    let Some(info) = pair_information(
-                        surfaces.target_covariance(j),
-                        &source_covariances[i],
-                        rotation,
-                    ) else {
-                        return (jtwj, jtwd, total);
-                    };
-                    let jac = jacobian(&moved[i]);
-                    let jtw = jac.transpose() * (info * w);
-                    (
-                        jtwj + jtw * jac,
-                        jtwd + jtw * (moved[i] - target[j]),
-                        total + w,
-                    )
-                },
-            )
-        })
-        .collect();
-    sum_partials(&partials)
+    normal_equations_over(pairs, |i, j, distance| {
+        let w = kernel.weight(distance);
+        let info = pair_information(
+            surfaces.target_covariance(j),
+            &source_covariances[i],
+            rotation,
+        )?;
+        let jac = jacobian(&moved[i]);
+        let jtw = jac.transpose() * (info * w);
+        Some((jtw * jac, jtw * (moved[i] - target[j]), w))
+    })
 }
 
 #[cfg(test)]

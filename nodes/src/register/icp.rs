@@ -17,7 +17,7 @@
 
 use super::gicp::{self, GicpSurfaces};
 pub use super::pairs::Kernel;
-use super::pairs::{Pairs, REDUCTION_CHUNK, sum_partials};
+use super::pairs::{Pairs, REDUCTION_CHUNK, normal_equations_over};
 use super::procrustes::fit_from_moments;
 use crate::cloud::{Nearest, voxel_downsample};
 use fusegraph_plugin_api::derive::Choice;
@@ -429,9 +429,7 @@ impl PairMoments {
 /// The sums of point-to-plane's normal equations: `sum w a a^T`,
 /// `sum w a r` and `sum w`, with `r = n . (m - q)` each pair's distance
 /// along the target normal, `a = (m x n, n)` its row and `w` its kernel
-/// weight. Over fixed chunks in parallel, then the chunks in order: the same
-/// bits on any number of threads (rayon's own reduce splits by the thread
-/// count).
+/// weight.
 fn point_to_plane_equations(
     pairs: &Pairs,
     moved: &[Point3<f64>],
@@ -439,27 +437,14 @@ fn point_to_plane_equations(
     normals: &[Vector3<f64>],
     kernel: Kernel,
 ) -> (Matrix6<f64>, Vector6<f64>, f64) {
-    let partials: Vec<(Matrix6<f64>, Vector6<f64>, f64)> = pairs
-        .par_chunks(REDUCTION_CHUNK)
-        .map(|chunk| {
-            chunk.iter().fold(
-                (Matrix6::zeros(), Vector6::zeros(), 0.0),
-                |(ata, atb, total), &(i, j, _)| {
-                    let (m, q, n) = (moved[i], target[j], normals[j]);
-                    let r = n.dot(&(m - q));
-                    let w = kernel.weight(r);
-                    let c = m.coords.cross(&n);
-                    let row = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
-                    (
-                        ata + row * row.transpose() * w,
-                        atb + row * (r * w),
-                        total + w,
-                    )
-                },
-            )
-        })
-        .collect();
-    sum_partials(&partials)
+    normal_equations_over(pairs, |i, j, _| {
+        let (m, q, n) = (moved[i], target[j], normals[j]);
+        let r = n.dot(&(m - q));
+        let w = kernel.weight(r);
+        let c = m.coords.cross(&n);
+        let row = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
+        Some((row * row.transpose() * w, row * (r * w), w))
+    })
 }
 
 /// The step (a small turn w and shift t, applied after `transform`) that

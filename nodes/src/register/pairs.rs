@@ -3,6 +3,7 @@
 //! (the same bits on any number of threads).
 
 use nalgebra::{Matrix6, Vector6};
+use rayon::prelude::*;
 
 /// Pairs of (source index, target index, distance mm).
 pub(crate) type Pairs = Vec<(usize, usize, f64)>;
@@ -46,10 +47,25 @@ impl Kernel {
 /// in order, whatever the thread count (rayon's own reduce splits by it).
 pub(crate) const REDUCTION_CHUNK: usize = 4096;
 
-/// Partial normal equations summed in order.
-pub(crate) fn sum_partials(
-    partials: &[(Matrix6<f64>, Vector6<f64>, f64)],
-) -> (Matrix6<f64>, Vector6<f64>, f64) {
+/// Linearised normal equations `(sum J^T W J, sum J^T W r, sum w)` over
+/// `pairs`, `term` giving each pair's part (`None` to leave it out): over
+/// fixed chunks in parallel, then the chunks in order.
+pub(crate) fn normal_equations_over<F>(pairs: &Pairs, term: F) -> (Matrix6<f64>, Vector6<f64>, f64)
+where
+    F: Fn(usize, usize, f64) -> Option<(Matrix6<f64>, Vector6<f64>, f64)> + Sync,
+{
+    let partials: Vec<(Matrix6<f64>, Vector6<f64>, f64)> = pairs
+        .par_chunks(REDUCTION_CHUNK)
+        .map(|chunk| {
+            chunk.iter().fold(
+                (Matrix6::zeros(), Vector6::zeros(), 0.0),
+                |(a, b, t), &(i, j, distance)| match term(i, j, distance) {
+                    Some((pa, pb, pt)) => (a + pa, b + pb, t + pt),
+                    None => (a, b, t),
+                },
+            )
+        })
+        .collect();
     partials.iter().fold(
         (Matrix6::zeros(), Vector6::zeros(), 0.0),
         |(a, b, t), (pa, pb, pt)| (a + pa, b + pb, t + pt),

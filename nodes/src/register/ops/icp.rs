@@ -28,7 +28,9 @@ use nalgebra::{Isometry3, Matrix6, Point3, Vector3};
 // 7: the calibration's part of the covariance as an output of its own.
 #[op(name = "register.icp", version = 7)]
 pub struct Icp {
-    /// Error metric
+    /// Error metric: point_to_plane (needs the target's normals),
+    /// point_to_point, or gicp (generalized ICP, Segal et al. 2009: each
+    /// pair weighed by both surfaces' local plane covariances)
     #[param(default = IcpMethod::PointToPlane)]
     pub method: IcpMethod,
     /// Pairs farther apart are ignored

@@ -81,6 +81,8 @@ pub struct DeformParams {
     pub trim_ratio: f64,
     /// Correspondence steps at each stiffness.
     pub steps_per_stage: usize,
+    /// Conjugate-gradient iterations at most per step's system.
+    pub solver_iterations: usize,
 }
 
 impl Default for DeformParams {
@@ -93,6 +95,7 @@ impl Default for DeformParams {
             max_distance_mm: 15.0,
             trim_ratio: 0.9,
             steps_per_stage: 4,
+            solver_iterations: 300,
         }
     }
 }
@@ -238,7 +241,8 @@ pub fn fit_deformation(
             // The stiffer stages only set the next one's start: a rougher
             // solve serves them.
             let tolerance = if stage + 1 < stages.len() { 1e-4 } else { 1e-6 };
-            field.displacements = system.solve(&field.displacements, tolerance);
+            field.displacements =
+                system.solve(&field.displacements, tolerance, p.solver_iterations);
             let change = before
                 .iter()
                 .zip(&field.displacements)
@@ -304,6 +308,9 @@ fn check(
     }
     if !(p.trim_ratio > 0.0 && p.trim_ratio <= 1.0) {
         return Err(format!("trim_ratio = {}: must be in (0, 1]", p.trim_ratio));
+    }
+    if p.solver_iterations == 0 {
+        return Err("solver_iterations = 0: must be at least 1".into());
     }
     for (name, v) in [
         ("landmark_weight", p.landmark_weight),
@@ -517,6 +524,34 @@ pub(crate) mod tests {
     }
 
     #[test]
+    fn the_solver_stops_at_its_iteration_cap() {
+        // The sag above: two iterations per system leave the field far from
+        // the default's, which settles it (the same data and stages).
+        let (scan, normals) = dome(2.5);
+        let now: Vec<Point3<f64>> = dome(2.0)
+            .0
+            .into_iter()
+            .filter(|p| p.z > 30.0)
+            .map(|p| p + sag(&p, 8.0))
+            .collect();
+        let m = markers(&scan);
+        let k: Vec<Point3<f64>> = m.iter().map(|p| p + sag(p, 8.0)).collect();
+        let landmarks = || Some(LandmarkPairs { scan: &m, now: &k });
+        let capped = DeformParams {
+            solver_iterations: 2,
+            ..DeformParams::default()
+        };
+        let short = fit_deformation(&scan, &normals, &now, landmarks(), None, &capped).unwrap();
+        let full = fit(&scan, &normals, &now, &m, &k);
+        assert!(
+            short.residual_mm > 2.0 * full.residual_mm,
+            "{} against {}",
+            short.residual_mm,
+            full.residual_mm
+        );
+    }
+
+    #[test]
     fn an_unmoved_dome_gets_almost_no_field() {
         let (scan, normals) = dome(2.5);
         let now: Vec<Point3<f64>> = dome(2.0).0.into_iter().filter(|p| p.z > 30.0).collect();
@@ -568,6 +603,11 @@ pub(crate) mod tests {
             ..DeformParams::default()
         });
         assert!(e.contains("trim_ratio"), "{e}");
+        let e = run(DeformParams {
+            solver_iterations: 0,
+            ..DeformParams::default()
+        });
+        assert!(e.contains("solver_iterations"), "{e}");
         let e = fit_deformation(
             &scan,
             &normals[1..],

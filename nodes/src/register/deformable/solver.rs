@@ -140,9 +140,13 @@ impl System<'_> {
     }
 
     /// Preconditioned conjugate gradients from `start`, until the residual
-    /// is `tolerance` of the right-hand side's norm.
-    pub(super) fn solve(&self, start: &[Vector3<f64>], tolerance: f64) -> Vec<Vector3<f64>> {
-        const MAX_ITERATIONS: usize = 300;
+    /// is `tolerance` of the right-hand side's norm or after `iterations`.
+    pub(super) fn solve(
+        &self,
+        start: &[Vector3<f64>],
+        tolerance: f64,
+        iterations: usize,
+    ) -> Vec<Vector3<f64>> {
         let dot = |a: &[Vector3<f64>], b: &[Vector3<f64>]| -> f64 {
             a.iter().zip(b).map(|(x, y)| x.dot(y)).sum()
         };
@@ -155,7 +159,7 @@ impl System<'_> {
         let mut z: Vec<Vector3<f64>> = m.iter().zip(&r).map(|(m, r)| m * r).collect();
         let mut d = z.clone();
         let mut rz = dot(&r, &z);
-        for _ in 0..MAX_ITERATIONS {
+        for _ in 0..iterations {
             if dot(&r, &r).sqrt() <= tolerance * norm_b {
                 break;
             }

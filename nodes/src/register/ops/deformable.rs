@@ -56,6 +56,9 @@ pub struct Deformable {
     /// Fewer matched markers than this: no field (the surfaces alone cannot pin a slide along the skin)
     #[param(default = 4, min = 0)]
     pub min_landmarks: usize,
+    /// Conjugate-gradient iterations at most per step's linear system (the bending term converges slowly: on the main job every system reaches this cap; fewer is faster and leaves the field's far parts, which no data reach, less settled)
+    #[param(default = 300, min = 1, max = 100000)]
+    pub solver_iterations: usize,
 }
 
 /// Whether a field is fitted.
@@ -124,6 +127,7 @@ impl RunOp for Deformable {
             support_weight: self.support_weight,
             max_distance_mm: self.max_distance_mm,
             trim_ratio: self.trim_ratio,
+            solver_iterations: self.solver_iterations,
             ..DeformParams::default()
         };
         let zero = || Lattice::covering(&scan, self.spacing_mm, 2.0 * self.spacing_mm);
@@ -397,6 +401,7 @@ mod tests {
             max_motion_mm: 30.0,
             max_points: 20000,
             min_landmarks: 4,
+            solver_iterations: 300,
         }
     }
 

@@ -489,13 +489,16 @@ pub(crate) mod tests {
         .unwrap()
     }
 
-    #[test]
-    fn a_sagged_dome_seen_from_above_is_followed_inside_too() {
-        // The camera sees the skin above 30 mm, moved by 8 mm of sag at the
-        // apex; both see 12 markers. With no field the interior points (15-40
-        // mm deep) are 3-5 mm off; the field brings them within a quarter
-        // of that (0.15-0.7 mm: the bending's fill, linear where the sag's
-        // smoothstep bends).
+    /// The scanned dome and its normals, the skin seen now (above 30 mm,
+    /// sagged 8 mm at the apex), and the 12 markers in the scan and now.
+    #[allow(clippy::type_complexity)]
+    fn sagged_dome() -> (
+        Vec<Point3<f64>>,
+        Vec<Vector3<f64>>,
+        Vec<Point3<f64>>,
+        Vec<Point3<f64>>,
+        Vec<Point3<f64>>,
+    ) {
         let (scan, normals) = dome(2.5);
         let now: Vec<Point3<f64>> = dome(2.0)
             .0
@@ -505,6 +508,17 @@ pub(crate) mod tests {
             .collect();
         let m = markers(&scan);
         let k: Vec<Point3<f64>> = m.iter().map(|p| p + sag(p, 8.0)).collect();
+        (scan, normals, now, m, k)
+    }
+
+    #[test]
+    fn a_sagged_dome_seen_from_above_is_followed_inside_too() {
+        // The camera sees the skin above 30 mm, moved by 8 mm of sag at the
+        // apex; both see 12 markers. With no field the interior points (15-40
+        // mm deep) are 3-5 mm off; the field brings them within a quarter
+        // of that (0.15-0.7 mm: the bending's fill, linear where the sag's
+        // smoothstep bends).
+        let (scan, normals, now, m, k) = sagged_dome();
         let d = fit(&scan, &normals, &now, &m, &k);
         assert!(d.rigid_residual_mm > 2.0, "{}", d.rigid_residual_mm);
         assert!(d.residual_mm < 0.3, "{}", d.residual_mm);
@@ -527,15 +541,7 @@ pub(crate) mod tests {
     fn the_solver_stops_at_its_iteration_cap() {
         // The sag above: two iterations per system leave the field far from
         // the default's, which settles it (the same data and stages).
-        let (scan, normals) = dome(2.5);
-        let now: Vec<Point3<f64>> = dome(2.0)
-            .0
-            .into_iter()
-            .filter(|p| p.z > 30.0)
-            .map(|p| p + sag(&p, 8.0))
-            .collect();
-        let m = markers(&scan);
-        let k: Vec<Point3<f64>> = m.iter().map(|p| p + sag(p, 8.0)).collect();
+        let (scan, normals, now, m, k) = sagged_dome();
         let landmarks = || Some(LandmarkPairs { scan: &m, now: &k });
         let capped = DeformParams {
             solver_iterations: 2,

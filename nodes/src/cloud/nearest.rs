@@ -102,11 +102,15 @@ impl Nearest {
                 (item, (self.points[item] - p).norm_squared())
             })
         };
-        match (exact(0)?, exact(1)) {
-            (a, Some(b)) if b.1 < a.1 => Some((b, a.1)),
-            (a, Some(b)) => Some((a, b.1)),
-            (a, None) => Some((a, (beyond * beyond).max(a.1))),
-        }
+        // A point just outside the radius may have been left out while one
+        // the f32 rounding let in lies beyond it: past `beyond`, only
+        // `beyond` itself is a sure bound.
+        let (nearest, second) = match (exact(0)?, exact(1)) {
+            (a, Some(b)) if b.1 < a.1 => (b, a.1),
+            (a, Some(b)) => (a, b.1),
+            (a, None) => (a, f64::INFINITY),
+        };
+        Some((nearest, second.min(beyond * beyond).max(nearest.1)))
     }
 
     /// The median distance from a point of the set to its nearest other

@@ -19,9 +19,7 @@ pub fn estimate_normals(
     points
         .par_iter()
         .map(|p| {
-            let eig = neighbourhood_scatter(&tree, p, k.max(3)).symmetric_eigen();
-            let (min_i, _) = eig.eigenvalues.argmin();
-            let mut n: Vector3<f64> = eig.eigenvectors.column(min_i).into();
+            let mut n = least_spread(&tree, p, k.max(3));
             let towards = match viewpoint {
                 Some(v) => v - p,
                 None => p.coords - centroid,
@@ -34,18 +32,21 @@ pub fn estimate_normals(
         .collect()
 }
 
-/// The scatter matrix (sum of outer products about their mean, mm²) of the
-/// `k` points of `tree` nearest `p`.
-fn neighbourhood_scatter(tree: &Nearest, p: &Point3<f64>, k: usize) -> Matrix3<f64> {
+/// The unit direction (either sign) in which the `k` points of `tree`
+/// nearest `p` spread least: the local surface's normal.
+fn least_spread(tree: &Nearest, p: &Point3<f64>, k: usize) -> Vector3<f64> {
     let idx = tree.knn(p, k);
     let mean = idx
         .iter()
         .fold(Vector3::zeros(), |a, &i| a + tree.point(i).coords)
         / idx.len() as f64;
-    idx.iter().fold(Matrix3::zeros(), |a, &i| {
+    let scatter = idx.iter().fold(Matrix3::zeros(), |a, &i| {
         let d = tree.point(i).coords - mean;
         a + d * d.transpose()
-    })
+    });
+    let eig = scatter.symmetric_eigen();
+    let (least, _) = eig.eigenvalues.argmin();
+    eig.eigenvectors.column(least).into()
 }
 
 /// Across-plane variance of a plane covariance, relative to its in-plane
@@ -67,9 +68,7 @@ pub fn plane_covariances(points: &[Point3<f64>], surface: &Nearest, k: usize) ->
 
 /// One point's plane covariance (see [`plane_covariances`]).
 pub fn plane_covariance(p: &Point3<f64>, surface: &Nearest, k: usize) -> Matrix3<f64> {
-    let eig = neighbourhood_scatter(surface, p, k.max(3)).symmetric_eigen();
-    let (least, _) = eig.eigenvalues.argmin();
-    let n: Vector3<f64> = eig.eigenvectors.column(least).into();
+    let n = least_spread(surface, p, k.max(3));
     Matrix3::identity() - n * n.transpose() * (1.0 - PLANE_COVARIANCE_EPSILON)
 }
 

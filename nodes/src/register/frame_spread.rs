@@ -14,6 +14,7 @@
 //! adjustment, seeds 41-48). Where the surfaces do hold the views, the
 //! figure errs on the wide side.
 
+use super::pairs::motion_jacobian;
 use nalgebra::{DMatrix, Matrix3, Matrix6, Point3};
 
 /// One sighting of a marker: the view that saw it, and where the merge put
@@ -113,16 +114,6 @@ pub fn markers_frame_covariance(
 
 fn dense(m: &Matrix3<f64>) -> DMatrix<f64> {
     DMatrix::from_column_slice(3, 3, m.as_slice())
-}
-
-/// How a point at `p` moves under a small motion (w, t): `[-[p]x, I]`.
-fn motion_jacobian(p: &Point3<f64>) -> nalgebra::Matrix3x6<f64> {
-    let mut j = nalgebra::Matrix3x6::zeros();
-    j.fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(&(-p.coords.cross_matrix()));
-    j.fixed_view_mut::<3, 3>(0, 3)
-        .copy_from(&Matrix3::identity());
-    j
 }
 
 #[cfg(test)]

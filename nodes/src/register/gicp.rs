@@ -7,9 +7,9 @@
 //! alone. Linearised in a small turn w and shift t applied after the
 //! transform (`m -> m + w x m + t`), as point-to-plane is.
 
-use super::pairs::{Kernel, Pairs, normal_equations_over};
+use super::pairs::{Kernel, Pairs, motion_jacobian, normal_equations_over};
 use crate::cloud::{Nearest, plane_covariance, plane_covariances};
-use nalgebra::{Matrix3, Matrix3x6, Matrix6, Point3, Rotation3, Vector6};
+use nalgebra::{Matrix3, Matrix6, Point3, Rotation3, Vector6};
 use std::sync::OnceLock;
 
 /// Neighbours whose spread gives a point's plane covariance (Segal et al.
@@ -68,16 +68,6 @@ pub(crate) fn pair_information(
     (target_covariance + r * source_covariance * r.transpose()).try_inverse()
 }
 
-/// The Jacobian of `m + w x m + t` in (w, t) at zero: `[-[m]x | I]`.
-pub(crate) fn jacobian(m: &Point3<f64>) -> Matrix3x6<f64> {
-    let mut j = Matrix3x6::zeros();
-    j.fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(&(-m.coords.cross_matrix()));
-    j.fixed_view_mut::<3, 3>(0, 3)
-        .copy_from(&Matrix3::identity());
-    j
-}
-
 /// The normal equations of one step: `sum J^T W J`, `sum J^T W d` and the
 /// sum of the kernel weights, over `pairs` of `moved` source points (target
 /// frame) and `target` points, with `W` each pair's information times its
@@ -100,7 +90,7 @@ pub(crate) fn normal_equations(
             &source_covariances[i],
             rotation,
         )?;
-        let jac = jacobian(&moved[i]);
+        let jac = motion_jacobian(&moved[i]);
         let jtw = jac.transpose() * (info * w);
         Some((jtw * jac, jtw * (moved[i] - target[j]), w))
     })
@@ -119,7 +109,7 @@ mod tests {
             Vector3::new(x[0], x[1], x[2]),
             Vector3::new(x[3], x[4], x[5]),
         );
-        assert!((jacobian(&m) * x - (w.cross(&m.coords) + t)).norm() < 1e-12);
+        assert!((motion_jacobian(&m) * x - (w.cross(&m.coords) + t)).norm() < 1e-12);
     }
 
     #[test]

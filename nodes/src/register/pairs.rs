@@ -1,9 +1,21 @@
 //! What every ICP variant shares: the pairs of source and target points,
-//! the robust kernels that weigh them, and sums over them in a fixed order
-//! (the same bits on any number of threads).
+//! the robust kernels that weigh them, sums over them in a fixed order (the
+//! same bits on any number of threads), and the small-motion Jacobian the
+//! linearised fits (and the frame's adjustment) are taken in.
 
-use nalgebra::{Matrix6, Vector6};
+use nalgebra::{Matrix3, Matrix3x6, Matrix6, Point3, Vector6};
 use rayon::prelude::*;
+
+/// How a point at `p` moves under a small turn w and shift t applied
+/// after (`p -> p + w x p + t`), in (w, t) at zero: `[-[p]x | I]`.
+pub(crate) fn motion_jacobian(p: &Point3<f64>) -> Matrix3x6<f64> {
+    let mut j = Matrix3x6::zeros();
+    j.fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(&(-p.coords.cross_matrix()));
+    j.fixed_view_mut::<3, 3>(0, 3)
+        .copy_from(&Matrix3::identity());
+    j
+}
 
 /// Pairs of (source index, target index, distance mm).
 pub(crate) type Pairs = Vec<(usize, usize, f64)>;

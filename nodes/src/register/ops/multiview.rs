@@ -21,6 +21,10 @@ use fusegraph_engine::typed::prelude::*;
 use fusegraph_engine::value::{Markers, PointCloud, StereoRig, Table, Transform};
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 
+/// The port of the rig that took every view, and of its parameter covariance.
+const RIG_PORT: &str = "rig";
+const RIG_COVARIANCE_PORT: &str = "rig_covariance";
+
 /// Views `register.multiview` accepts.
 pub const MAX_VIEWS: usize = 8;
 
@@ -141,13 +145,13 @@ impl<'a> InputSet<'a, Inputs> for MultiviewInputs {
             ));
         }
         decls.push(port(
-            "rig",
+            RIG_PORT,
             <Arc<StereoRig> as InputPort<'a, Inputs>>::type_names(),
             true,
             "The rig that took every view: with rig_covariance, the calibration's spread joins each marker's weight (it makes one marker's sightings from different views disagree), not the frame's error (register.icp counts it)",
         ));
         decls.push(port(
-            "rig_covariance",
+            RIG_COVARIANCE_PORT,
             <Arc<Table> as InputPort<'a, Inputs>>::type_names(),
             true,
             "The rig's parameter covariance (calib.stereo_calibrate's `covariance`)",
@@ -173,8 +177,8 @@ impl<'a> InputSet<'a, Inputs> for MultiviewInputs {
             .collect::<Result<_, PortProblem>>()?;
         Ok(MultiviewInputs {
             views,
-            rig: read_input(source, "rig")?,
-            rig_covariance: read_input(source, "rig_covariance")?,
+            rig: read_input(source, RIG_PORT)?,
+            rig_covariance: read_input(source, RIG_COVARIANCE_PORT)?,
         })
     }
 }

@@ -260,11 +260,21 @@ fn noise_covariance(
     h_inverse: &Matrix6<f64>,
     block_mm: f64,
 ) -> (Matrix6<f64>, usize) {
+    let root = h_inverse.cholesky().map(|c| c.l());
+    let score = |cluster: &[&Term]| {
+        let s = cluster_score(cluster, root.as_ref());
+        s * s.transpose()
+    };
     let mut clusters: HashMap<(i64, i64, i64, i64), Vec<&Term>> = HashMap::new();
-    for (n, t) in terms.iter().enumerate() {
+    let mut singles = Vec::new();
+    for t in terms {
         let key = match t.origin {
             Origin::Landmark(k) => (i64::MIN, k as i64, 0, 0),
-            Origin::Surface(_) if block_mm <= 0.0 => (i64::MAX, n as i64, 0, 0),
+            // Each its own block, after the landmarks', in term order.
+            Origin::Surface(_) if block_mm <= 0.0 => {
+                singles.push(t);
+                continue;
+            }
             Origin::Surface(_) => {
                 let c = t.anchor.coords / block_mm;
                 (
@@ -280,12 +290,13 @@ fn noise_covariance(
     // Blocks in a fixed order: the same bits however the map iterates.
     let mut keys: Vec<_> = clusters.keys().copied().collect();
     keys.sort_unstable();
-    let root = h_inverse.cholesky().map(|c| c.l());
-    let meat = keys.iter().fold(Matrix6::zeros(), |m, k| {
-        let s = cluster_score(&clusters[k], root.as_ref());
-        m + s * s.transpose()
-    });
-    (h_inverse * meat * h_inverse, clusters.len())
+    let meat = keys
+        .iter()
+        .fold(Matrix6::zeros(), |m, k| m + score(&clusters[k]));
+    let meat = singles
+        .iter()
+        .fold(meat, |m, t| m + score(std::slice::from_ref(t)));
+    (h_inverse * meat * h_inverse, clusters.len() + singles.len())
 }
 
 /// A cluster's sum of w r J with its residuals corrected for their leverage
@@ -304,6 +315,16 @@ fn cluster_score(terms: &[&Term], root: Option<&Matrix6<f64>>) -> Vector6<f64> {
     let Some(l) = root else {
         return plain;
     };
+    if let [t] = terms {
+        // One term: its leverage is the scalar w J^T H^-1 J, and the
+        // correction below reduces to dividing by (1 - leverage)^1/2.
+        let leverage = (l.transpose() * t.row()).norm_squared() * t.weight;
+        return if leverage >= 1.0 - 1e-6 {
+            plain
+        } else {
+            plain / (1.0 - leverage).sqrt()
+        };
+    }
     let a = terms.iter().fold(Matrix6::zeros(), |a, t| {
         let row = t.row();
         a + row * row.transpose() * t.weight
@@ -452,6 +473,31 @@ mod tests {
     use crate::register::{IcpMethod, IcpParams, Kernel, icp};
     use rand::SeedableRng;
     use rand_distr::{Distribution, Normal};
+
+    #[test]
+    fn a_single_terms_leverage_correction_is_the_general_ones() {
+        // One term of weight w against the same term twice at w / 2: the
+        // same leverage, which the second finds by the eigen route.
+        let h_inverse = Matrix6::from_diagonal(&Vector6::new(0.02, 0.03, 0.01, 0.4, 0.5, 0.3));
+        let root = h_inverse.cholesky().map(|c| c.l()).unwrap();
+        let term = |weight| Term {
+            origin: Origin::Surface(0),
+            moved: Point3::new(3.0, -2.0, 5.0),
+            anchor: Point3::new(3.0, -2.0, 5.0),
+            direction: Vector3::new(0.2, 0.3, 0.9).normalize(),
+            residual: 0.7,
+            weight,
+        };
+        let one = cluster_score(&[&term(0.8)], Some(&root));
+        let halves = cluster_score(&[&term(0.4), &term(0.4)], Some(&root));
+        let plain = cluster_score(&[&term(0.8)], None);
+        assert!(
+            (one - halves).norm() < 1e-12 * one.norm(),
+            "{one} against {halves}"
+        );
+        // And the correction is not empty here (a leverage of about 0.4).
+        assert!(one.norm() > 1.2 * plain.norm());
+    }
 
     #[test]
     fn a_carried_covariance_moves_points_as_the_motion_before_it_does() {

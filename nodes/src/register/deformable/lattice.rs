@@ -43,26 +43,14 @@ impl Lattice {
     }
 
     pub(super) fn node(&self, i: usize, j: usize, k: usize) -> usize {
-        i + self.dims[0] * (j + self.dims[1] * k)
+        node_index(self.dims, [i, j, k])
     }
 
     /// The 8 nodes around `p` and their trilinear weights (clamped to the
     /// lattice).
     pub fn stencil(&self, p: &Point3<f64>) -> [(usize, f64); 8] {
-        let cell: [(usize, f64); 3] = std::array::from_fn(|a| {
-            let f =
-                ((p[a] - self.origin[a]) / self.spacing_mm).clamp(0.0, (self.dims[a] - 1) as f64);
-            let i = (f.floor() as usize).min(self.dims[a] - 2);
-            (i, f - i as f64)
-        });
-        std::array::from_fn(|c| {
-            let (dx, dy, dz) = (c & 1, (c >> 1) & 1, (c >> 2) & 1);
-            let w = |(_, t): (usize, f64), d: usize| if d == 1 { t } else { 1.0 - t };
-            (
-                self.node(cell[0].0 + dx, cell[1].0 + dy, cell[2].0 + dz),
-                w(cell[0], dx) * w(cell[1], dy) * w(cell[2], dz),
-            )
-        })
+        let at: [f64; 3] = std::array::from_fn(|a| (p[a] - self.origin[a]) / self.spacing_mm);
+        trilinear_stencil(self.dims, at)
     }
 
     /// The displacement at `p`, mm.
@@ -140,53 +128,128 @@ impl Lattice {
         }
         Ok(lattice)
     }
+}
 
-    /// The lattice's node triples in a line (one spacing apart along an
-    /// axis), middle node second.
-    pub(super) fn triples(&self) -> Vec<[usize; 3]> {
-        let [nx, ny, nz] = self.dims;
-        let mut triples = Vec::with_capacity(3 * nx * ny * nz);
-        for k in 0..nz {
-            for j in 0..ny {
-                for i in 0..nx {
-                    let b = self.node(i, j, k);
-                    if i > 0 && i + 1 < nx {
-                        triples.push([self.node(i - 1, j, k), b, self.node(i + 1, j, k)]);
-                    }
-                    if j > 0 && j + 1 < ny {
-                        triples.push([self.node(i, j - 1, k), b, self.node(i, j + 1, k)]);
-                    }
-                    if k > 0 && k + 1 < nz {
-                        triples.push([self.node(i, j, k - 1), b, self.node(i, j, k + 1)]);
-                    }
+/// How many edges a lattice of `dims` nodes has (node pairs one spacing
+/// apart).
+pub(super) fn edge_count(dims: [usize; 3]) -> usize {
+    (0..3)
+        .map(|a| (dims[a] - 1) * dims[(a + 1) % 3] * dims[(a + 2) % 3])
+        .sum()
+}
+
+/// How many lines of three nodes a lattice of `dims` nodes has.
+pub(super) fn triple_count(dims: [usize; 3]) -> usize {
+    (0..3)
+        .map(|a| dims[a].saturating_sub(2) * dims[(a + 1) % 3] * dims[(a + 2) % 3])
+        .sum()
+}
+
+#[cfg(test)]
+/// A lattice's node triples in a line (one spacing apart along an
+/// axis), middle node second.
+pub(super) fn triples(dims: [usize; 3]) -> Vec<[usize; 3]> {
+    let [nx, ny, nz] = dims;
+    let mut triples = Vec::with_capacity(3 * nx * ny * nz);
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                let b = node_index(dims, [i, j, k]);
+                if i > 0 && i + 1 < nx {
+                    triples.push([
+                        node_index(dims, [i - 1, j, k]),
+                        b,
+                        node_index(dims, [i + 1, j, k]),
+                    ]);
+                }
+                if j > 0 && j + 1 < ny {
+                    triples.push([
+                        node_index(dims, [i, j - 1, k]),
+                        b,
+                        node_index(dims, [i, j + 1, k]),
+                    ]);
+                }
+                if k > 0 && k + 1 < nz {
+                    triples.push([
+                        node_index(dims, [i, j, k - 1]),
+                        b,
+                        node_index(dims, [i, j, k + 1]),
+                    ]);
                 }
             }
         }
-        triples
     }
+    triples
+}
 
-    /// The lattice's edges (node pairs one spacing apart).
-    pub(super) fn edges(&self) -> Vec<(usize, usize)> {
-        let [nx, ny, nz] = self.dims;
-        let mut edges = Vec::with_capacity(3 * nx * ny * nz);
-        for k in 0..nz {
-            for j in 0..ny {
-                for i in 0..nx {
-                    let a = self.node(i, j, k);
-                    if i + 1 < nx {
-                        edges.push((a, self.node(i + 1, j, k)));
-                    }
-                    if j + 1 < ny {
-                        edges.push((a, self.node(i, j + 1, k)));
-                    }
-                    if k + 1 < nz {
-                        edges.push((a, self.node(i, j, k + 1)));
-                    }
+#[cfg(test)]
+/// A lattice's edges (node pairs one spacing apart).
+pub(super) fn edges(dims: [usize; 3]) -> Vec<(usize, usize)> {
+    let [nx, ny, nz] = dims;
+    let mut edges = Vec::with_capacity(3 * nx * ny * nz);
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                let a = node_index(dims, [i, j, k]);
+                if i + 1 < nx {
+                    edges.push((a, node_index(dims, [i + 1, j, k])));
+                }
+                if j + 1 < ny {
+                    edges.push((a, node_index(dims, [i, j + 1, k])));
+                }
+                if k + 1 < nz {
+                    edges.push((a, node_index(dims, [i, j, k + 1])));
                 }
             }
         }
-        edges
     }
+    edges
+}
+
+/// The 8 nodes around `at` (in node units: node (i, j, k) is at (i, j, k))
+/// on a lattice of `dims` nodes, and their trilinear weights, corner `c`
+/// being the cell's corner (c & 1, c >> 1 & 1, c >> 2 & 1); `at` is
+/// clamped to the lattice.
+pub(super) fn trilinear_stencil(dims: [usize; 3], at: [f64; 3]) -> [(usize, f64); 8] {
+    let cell: [(usize, f64); 3] = std::array::from_fn(|a| {
+        let f = at[a].clamp(0.0, (dims[a] - 1) as f64);
+        let i = (f.floor() as usize).min(dims[a] - 2);
+        (i, f - i as f64)
+    });
+    std::array::from_fn(|c| {
+        let (dx, dy, dz) = (c & 1, (c >> 1) & 1, (c >> 2) & 1);
+        let w = |(_, t): (usize, f64), d: usize| if d == 1 { t } else { 1.0 - t };
+        (
+            node_index(dims, [cell[0].0 + dx, cell[1].0 + dy, cell[2].0 + dz]),
+            w(cell[0], dx) * w(cell[1], dy) * w(cell[2], dz),
+        )
+    })
+}
+
+/// Where a [`trilinear_stencil`] was taken, in node units (its cell's first
+/// corner plus the weights' fractions).
+pub(super) fn stencil_position(dims: [usize; 3], stencil: &[(usize, f64); 8]) -> [f64; 3] {
+    let base = node_coords(dims, stencil[0].0);
+    let share = |corners: [usize; 4]| corners.iter().map(|&c| stencil[c].1).sum::<f64>();
+    [
+        base[0] as f64 + share([1, 3, 5, 7]),
+        base[1] as f64 + share([2, 3, 6, 7]),
+        base[2] as f64 + share([4, 5, 6, 7]),
+    ]
+}
+
+/// Node (i, j, k)'s index on a lattice of `dims` nodes (x fastest).
+pub(super) fn node_index(dims: [usize; 3], [i, j, k]: [usize; 3]) -> usize {
+    i + dims[0] * (j + dims[1] * k)
+}
+
+/// Node `n`'s (i, j, k) on a lattice of `dims` nodes.
+pub(super) fn node_coords(dims: [usize; 3], n: usize) -> [usize; 3] {
+    [
+        n % dims[0],
+        (n / dims[0]) % dims[1],
+        n / (dims[0] * dims[1]),
+    ]
 }
 
 #[cfg(test)]

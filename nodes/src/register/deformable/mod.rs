@@ -40,12 +40,13 @@
 //! interpolated between the skin and the base (see [`support`]).
 //!
 //! Stiffness starts 16 times higher and is lowered by 4 twice (coarse
-//! motion first, as Amberg et al. do). Each system is solved by conjugate
-//! gradients with a block-Jacobi preconditioner, matrix-free (a data row
-//! touches 8 nodes). Written here: no Rust crate registers surfaces
-//! nonrigidly.
+//! motion first, as Amberg et al. do). Each system is assembled on the
+//! lattice and solved by conjugate gradients preconditioned by a multigrid
+//! V-cycle (see [`multigrid`]), to its tolerance. Written here: no Rust
+//! crate registers surfaces nonrigidly.
 
 mod lattice;
+mod multigrid;
 mod solver;
 pub mod support;
 
@@ -95,7 +96,7 @@ impl Default for DeformParams {
             max_distance_mm: 15.0,
             trim_ratio: 0.9,
             steps_per_stage: 4,
-            solver_iterations: 300,
+            solver_iterations: 100,
         }
     }
 }
@@ -122,6 +123,13 @@ pub struct Deformation {
     /// Scan points paired with a point seen now at the end (the skin both
     /// see).
     pub seen: Vec<usize>,
+    /// The most iterations a step's system took.
+    pub solver_iterations: usize,
+    /// Steps whose system stopped at the iteration cap short of its
+    /// tolerance.
+    pub unconverged_steps: usize,
+    /// The largest relative residual a step's system was left with.
+    pub worst_relative_residual: f64,
 }
 
 /// Landmark pairs for the fit: scan positions, positions now (same frame,
@@ -167,8 +175,8 @@ pub fn fit_deformation(
     let support_rms =
         |field: &Lattice| support.map_or(f64::NAN, |s| s.residual_mm(|b| field.displacement(b)));
     let rigid_support_residual_mm = support_rms(&field);
-    let edges = field.edges();
-    let triples = field.triples();
+    let edge_count = lattice::edge_count(field.dims);
+    let triple_count = lattice::triple_count(field.dims);
     let scan_tree = Nearest::new(scan).ok_or("the scan's skin is empty")?;
     // A landmark's row is fixed: its stencil is at its scan position.
     let lrows: Vec<LandmarkRow> = landmarks
@@ -210,6 +218,8 @@ pub fn fit_deformation(
     let mut rigid_residual_mm = f64::NAN;
     let mut residual_mm = f64::NAN;
     let mut seen = Vec::new();
+    let (mut solver_iterations, mut unconverged_steps) = (0, 0);
+    let mut worst_relative_residual: f64 = 0.0;
     let stages = [16.0, 4.0, 1.0];
     for (stage, &factor) in stages.iter().enumerate() {
         let stiffness2 = factor * p.stiffness_mm * p.stiffness_mm;
@@ -224,25 +234,34 @@ pub fn fit_deformation(
             let system = System {
                 surface: &rows,
                 landmarks: &lrows,
-                edges: &edges,
-                triples: &triples,
-                nodes: field.displacements.len(),
+                dims: field.dims,
                 landmark_weight: if lrows.is_empty() {
                     0.0
                 } else {
                     p.landmark_weight / lrows.len() as f64
                 },
                 edge_weight: MEMBRANE_SHARE * stiffness2
-                    / (edges.len() as f64 * p.spacing_mm * p.spacing_mm),
-                bend_weight: stiffness2 * stiffness2
-                    / (triples.len() as f64 * p.spacing_mm.powi(4)),
+                    / (edge_count as f64 * p.spacing_mm * p.spacing_mm),
+                bend_weight: stiffness2 * stiffness2 / (triple_count as f64 * p.spacing_mm.powi(4)),
             };
             let before = field.displacements.clone();
             // The stiffer stages only set the next one's start: a rougher
             // solve serves them.
             let tolerance = if stage + 1 < stages.len() { 1e-4 } else { 1e-6 };
-            field.displacements =
+            let (solved, report) =
                 system.solve(&field.displacements, tolerance, p.solver_iterations);
+            tracing::debug!(
+                stage,
+                iterations = report.iterations,
+                relative_residual = report.relative_residual,
+                "deformable step solved"
+            );
+            field.displacements = solved;
+            solver_iterations = solver_iterations.max(report.iterations);
+            worst_relative_residual = worst_relative_residual.max(report.relative_residual);
+            if report.relative_residual > tolerance {
+                unconverged_steps += 1;
+            }
             let change = before
                 .iter()
                 .zip(&field.displacements)
@@ -267,6 +286,9 @@ pub fn fit_deformation(
         residual_mm,
         rigid_landmark_residual_mm,
         seen,
+        solver_iterations,
+        unconverged_steps,
+        worst_relative_residual,
     })
 }
 
@@ -539,22 +561,34 @@ pub(crate) mod tests {
 
     #[test]
     fn the_solver_stops_at_its_iteration_cap() {
-        // The sag above: two iterations per system leave the field far from
-        // the default's, which settles it (the same data and stages).
+        // The sag above: one iteration per system leaves the field off the
+        // default's, which solves each system to its tolerance (the same
+        // data and stages).
         let (scan, normals, now, m, k) = sagged_dome();
         let landmarks = || Some(LandmarkPairs { scan: &m, now: &k });
         let capped = DeformParams {
-            solver_iterations: 2,
+            solver_iterations: 1,
             ..DeformParams::default()
         };
         let short = fit_deformation(&scan, &normals, &now, landmarks(), None, &capped).unwrap();
         let full = fit(&scan, &normals, &now, &m, &k);
-        assert!(
-            short.residual_mm > 2.0 * full.residual_mm,
-            "{} against {}",
-            short.residual_mm,
-            full.residual_mm
+        let apart = short
+            .field
+            .displacements
+            .iter()
+            .zip(&full.field.displacements)
+            .map(|(a, b)| (a - b).norm())
+            .fold(0.0, f64::max);
+        // Measured: 2.3 mm apart at the worst node.
+        assert!(apart > 0.5, "{apart} mm apart");
+        // Each step says whether it reached its tolerance.
+        assert!(short.unconverged_steps > 0 && short.solver_iterations == 1);
+        assert_eq!(
+            full.unconverged_steps, 0,
+            "{}",
+            full.worst_relative_residual
         );
+        assert!(full.solver_iterations < 40, "{}", full.solver_iterations);
     }
 
     #[test]
@@ -693,9 +727,10 @@ pub(crate) mod tests {
             sum / points.len() as f64
         };
         let (without, with) = (mean_error(&alone), mean_error(&held));
-        // Measured: 1.40 mm alone, 1.21 mm with the base. What is left is
-        // the bending's fill, linear between base and skin where the
+        // Measured: 1.32 mm alone, 1.21 mm with the base (1.40 and 1.21
+        // when the solver stopped at its cap). What is left is the
+        // bending's fill, linear between base and skin where the
         // smoothstep curves.
-        assert!(with < 0.9 * without, "{with:.2} against {without:.2} mm");
+        assert!(with < 0.95 * without, "{with:.2} against {without:.2} mm");
     }
 }

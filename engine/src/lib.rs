@@ -17,6 +17,7 @@ pub mod graph;
 pub mod hash;
 pub mod key;
 pub mod lease;
+pub mod memory;
 pub mod op;
 pub mod panics;
 pub mod param;

@@ -206,6 +206,10 @@ impl<'a> Executor<'a> {
             if self.successors[i].is_empty() {
                 self.entry(i).take();
             }
+            let ms = self.reports[i].get().map_or(0.0, |r| r.ms);
+            if ms >= crate::memory::TRIM_AFTER_MS {
+                crate::memory::return_free_memory();
+            }
         }
         self.progress.inc(1);
         for &next in &self.successors[i] {

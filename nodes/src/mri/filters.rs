@@ -23,24 +23,21 @@ pub fn gaussian_smooth(
 }
 
 /// [`gaussian_smooth`] of a volume the caller hands over: it is smoothed in
-/// its own memory with one scratch volume, so at most two volumes are held,
-/// not three.
+/// its own memory (a plane's scratch per task), so one volume is held, not
+/// two.
 pub fn gaussian_smooth_owned(
     mut data: Vec<f32>,
     dims: [usize; 3],
     spacing_mm: [f64; 3],
     sigma_mm: f64,
 ) -> Vec<f32> {
-    let mut scratch = Vec::new();
     for (axis, spacing) in spacing_mm.iter().enumerate() {
         let sigma_vox = sigma_mm / spacing.max(1e-9);
         if sigma_vox < 1e-3 {
             continue;
         }
         let kernel = gaussian_kernel(sigma_vox);
-        scratch.resize(data.len(), 0.0);
-        convolve_axis_into(&data, &mut scratch, dims, axis, &kernel);
-        std::mem::swap(&mut data, &mut scratch);
+        convolve_axis_in_place(&mut data, dims, axis, &kernel);
     }
     data
 }
@@ -55,9 +52,79 @@ fn gaussian_kernel(sigma: f64) -> Vec<f32> {
     weights.iter().map(|w| (w / total) as f32).collect()
 }
 
+/// `data` convolved in place along one axis with the odd-length `kernel`,
+/// borders clamped: each line of the axis is copied out and its outputs
+/// written back (along i a row, along j a slice, along k the rows of one j
+/// in every slice). Along j and k whole rows are weighted and summed
+/// (contiguous, so the compiler vectorises them). Each output is summed in
+/// kernel order, as [`convolve_axis_into`] sums it (the same bits).
+fn convolve_axis_in_place(data: &mut [f32], dims: [usize; 3], axis: usize, kernel: &[f32]) {
+    let [nx, ny, nz] = dims;
+    let radius = kernel.len() / 2;
+    // Rows `lines` of `nx` values, as copied out: the outputs along them.
+    let smooth_rows = |rows: &mut [&mut [f32]], copy: &mut Vec<f32>| {
+        copy.clear();
+        rows.iter().for_each(|r| copy.extend_from_slice(r));
+        let n = rows.len();
+        for (own, row_out) in rows.iter_mut().enumerate() {
+            row_out.iter_mut().for_each(|o| *o = 0.0);
+            for (t, &w) in kernel.iter().enumerate() {
+                let at =
+                    (own as isize + t as isize - radius as isize).clamp(0, n as isize - 1) as usize;
+                for (o, v) in row_out.iter_mut().zip(&copy[nx * at..nx * (at + 1)]) {
+                    *o += w * v;
+                }
+            }
+        }
+    };
+    match axis {
+        0 => data
+            .par_chunks_mut(nx)
+            .for_each_init(Vec::new, |copy, row| {
+                copy.clear();
+                copy.extend_from_slice(row);
+                for (i, o) in row.iter_mut().enumerate() {
+                    let mut s = 0.0f32;
+                    if i >= radius && i + radius < nx {
+                        // Inside: a plain window, no clamping per tap, summed
+                        // in the same order.
+                        for (w, v) in kernel.iter().zip(&copy[i - radius..=i + radius]) {
+                            s += w * v;
+                        }
+                    } else {
+                        for (t, w) in kernel.iter().enumerate() {
+                            let at = (i as isize + t as isize - radius as isize)
+                                .clamp(0, nx as isize - 1);
+                            s += w * copy[at as usize];
+                        }
+                    }
+                    *o = s;
+                }
+            }),
+        1 => data
+            .par_chunks_mut(nx * ny)
+            .for_each_init(Vec::new, |copy, slice| {
+                let mut rows: Vec<&mut [f32]> = slice.chunks_mut(nx).collect();
+                smooth_rows(&mut rows, copy);
+            }),
+        _ => {
+            // Row j of every slice, for each j: disjoint, so they are
+            // handed out as groups of mutable rows.
+            let mut lines: Vec<Vec<&mut [f32]>> = (0..ny).map(|_| Vec::with_capacity(nz)).collect();
+            for (r, row) in data.chunks_mut(nx).enumerate() {
+                lines[r % ny].push(row);
+            }
+            lines
+                .par_iter_mut()
+                .for_each_init(Vec::new, |copy, rows| smooth_rows(rows, copy));
+        }
+    }
+}
+
 /// `data` convolved along one axis with the odd-length `kernel`, borders
-/// clamped. Along j and k whole rows are weighted and summed (contiguous,
-/// so the compiler vectorises them).
+/// clamped, into `out`: the reference [`convolve_axis_in_place`] is
+/// checked against.
+#[cfg(test)]
 fn convolve_axis_into(
     data: &[f32],
     out: &mut [f32],
@@ -307,6 +374,36 @@ pub fn fill_holes(mask: &[u8], dims: [usize; 3]) -> Vec<u8> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn smoothing_in_place_gives_the_bits_of_smoothing_into_another_volume() {
+        // Random values on an odd-sized volume, a kernel longer than one
+        // axis (every line clamps at both ends) and a short one.
+        let dims = [23, 9, 14];
+        let mut state = 12345u64;
+        let data: Vec<f32> = (0..dims.iter().product::<usize>())
+            .map(|_| {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (state >> 40) as f32 / (1u64 << 24) as f32
+            })
+            .collect();
+        for sigma in [0.8, 4.0] {
+            let kernel = gaussian_kernel(sigma);
+            for axis in 0..3 {
+                let mut reference = vec![0.0f32; data.len()];
+                convolve_axis_into(&data, &mut reference, dims, axis, &kernel);
+                let mut in_place = data.clone();
+                convolve_axis_in_place(&mut in_place, dims, axis, &kernel);
+                let same = reference
+                    .iter()
+                    .zip(&in_place)
+                    .all(|(a, b)| a.to_bits() == b.to_bits());
+                assert!(same, "sigma {sigma}, axis {axis}");
+            }
+        }
+    }
 
     #[test]
     fn smoothing_keeps_a_constant_and_spreads_a_spike_by_sigma_in_mm() {

@@ -15,15 +15,7 @@ import csv
 import sys
 from collections import defaultdict
 
-
-def overrides(row):
-    """The variant's overrides as a dict (`a.b=v; c.d=w`)."""
-    out = {}
-    for part in row["overrides"].split(";"):
-        if "=" in part:
-            k, v = part.strip().split("=", 1)
-            out[k] = v
-    return out
+from deformable_sweep import overrides
 
 
 def main(path, param):

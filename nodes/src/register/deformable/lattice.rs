@@ -145,65 +145,29 @@ pub(super) fn triple_count(dims: [usize; 3]) -> usize {
         .sum()
 }
 
+/// Every run of `length` consecutive nodes along an axis of a lattice of
+/// `dims` nodes (`length` 2: its edges; 3: its lines of three, middle node
+/// second), each in ascending order.
 #[cfg(test)]
-/// A lattice's node triples in a line (one spacing apart along an
-/// axis), middle node second.
-pub(super) fn triples(dims: [usize; 3]) -> Vec<[usize; 3]> {
-    let [nx, ny, nz] = dims;
-    let mut triples = Vec::with_capacity(3 * nx * ny * nz);
-    for k in 0..nz {
-        for j in 0..ny {
-            for i in 0..nx {
-                let b = node_index(dims, [i, j, k]);
-                if i > 0 && i + 1 < nx {
-                    triples.push([
-                        node_index(dims, [i - 1, j, k]),
-                        b,
-                        node_index(dims, [i + 1, j, k]),
-                    ]);
-                }
-                if j > 0 && j + 1 < ny {
-                    triples.push([
-                        node_index(dims, [i, j - 1, k]),
-                        b,
-                        node_index(dims, [i, j + 1, k]),
-                    ]);
-                }
-                if k > 0 && k + 1 < nz {
-                    triples.push([
-                        node_index(dims, [i, j, k - 1]),
-                        b,
-                        node_index(dims, [i, j, k + 1]),
-                    ]);
-                }
+pub(super) fn runs(dims: [usize; 3], length: usize) -> Vec<Vec<usize>> {
+    let mut runs = Vec::new();
+    for n in 0..dims.iter().product() {
+        let at = node_coords(dims, n);
+        for axis in 0..3 {
+            if at[axis] + length <= dims[axis] {
+                runs.push(
+                    (0..length)
+                        .map(|t| {
+                            let mut to = at;
+                            to[axis] += t;
+                            node_index(dims, to)
+                        })
+                        .collect(),
+                );
             }
         }
     }
-    triples
-}
-
-#[cfg(test)]
-/// A lattice's edges (node pairs one spacing apart).
-pub(super) fn edges(dims: [usize; 3]) -> Vec<(usize, usize)> {
-    let [nx, ny, nz] = dims;
-    let mut edges = Vec::with_capacity(3 * nx * ny * nz);
-    for k in 0..nz {
-        for j in 0..ny {
-            for i in 0..nx {
-                let a = node_index(dims, [i, j, k]);
-                if i + 1 < nx {
-                    edges.push((a, node_index(dims, [i + 1, j, k])));
-                }
-                if j + 1 < ny {
-                    edges.push((a, node_index(dims, [i, j + 1, k])));
-                }
-                if k + 1 < nz {
-                    edges.push((a, node_index(dims, [i, j, k + 1])));
-                }
-            }
-        }
-    }
-    edges
+    runs
 }
 
 /// The 8 nodes around `at` (in node units: node (i, j, k) is at (i, j, k))
@@ -280,5 +244,10 @@ mod tests {
         assert!(e.contains("node 7"), "{e}");
         let e = Lattice::from_rows(&rows[..5]).unwrap_err();
         assert!(e.contains("5 nodes"), "{e}");
+        // The regularisers' counts, against the runs they count.
+        for dims in [[2, 2, 2], [5, 3, 4], [7, 2, 6]] {
+            assert_eq!(edge_count(dims), runs(dims, 2).len(), "{dims:?}");
+            assert_eq!(triple_count(dims), runs(dims, 3).len(), "{dims:?}");
+        }
     }
 }

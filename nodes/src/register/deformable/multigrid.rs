@@ -426,7 +426,7 @@ pub(super) fn term_at(
 
 #[cfg(test)]
 mod tests {
-    use super::super::lattice::{edges, triples};
+    use super::super::lattice::runs;
     use super::*;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
@@ -475,11 +475,11 @@ mod tests {
                 .sum();
             sum += u.dot(&(t.weight * u));
         }
-        for (a, b) in edges(dims) {
-            sum += reg.edge * (x[a] - x[b]).norm_squared();
+        for edge in runs(dims, 2) {
+            sum += reg.edge * (x[edge[0]] - x[edge[1]]).norm_squared();
         }
-        for [a, b, c] in triples(dims) {
-            sum += reg.bend * (x[a] - x[b] * 2.0 + x[c]).norm_squared();
+        for line in runs(dims, 3) {
+            sum += reg.bend * (x[line[0]] - x[line[1]] * 2.0 + x[line[2]]).norm_squared();
         }
         sum
     }

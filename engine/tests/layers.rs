@@ -11,7 +11,7 @@ use std::path::Path;
 const LAYERS: &[&[&str]] = &[
     // Plain data and helpers.
     &[
-        "error", "figure", "atomic", "process", "panics", "hash", "value", "param",
+        "error", "figure", "atomic", "process", "panics", "hash", "value", "param", "memory",
     ],
     // What an op is, and ops in the typed form.
     &["op", "typed"],

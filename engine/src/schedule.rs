@@ -193,6 +193,7 @@ struct Executor<'a> {
 impl<'a> Executor<'a> {
     fn execute<'s>(&'s self, i: usize, scope: &rayon::Scope<'s>) {
         let slot = self.compute(i);
+        let ms = slot.report.ms;
         *self.entry(i) = slot.entry;
         let _ = self.reports[i].set(slot.report);
         if !self.options.keep_outputs {
@@ -206,7 +207,6 @@ impl<'a> Executor<'a> {
             if self.successors[i].is_empty() {
                 self.entry(i).take();
             }
-            let ms = self.reports[i].get().map_or(0.0, |r| r.ms);
             if ms >= crate::memory::TRIM_AFTER_MS {
                 crate::memory::return_free_memory();
             }

@@ -392,15 +392,11 @@ mod tests {
     fn smoothing_in_place_gives_the_bits_of_smoothing_into_another_volume() {
         // Random values on an odd-sized volume, a kernel longer than one
         // axis (every line clamps at both ends) and a short one.
+        use rand::{Rng, SeedableRng};
         let dims = [23, 9, 14];
-        let mut state = 12345u64;
+        let mut rng = rand::rngs::StdRng::seed_from_u64(12345);
         let data: Vec<f32> = (0..dims.iter().product::<usize>())
-            .map(|_| {
-                state = state
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                (state >> 40) as f32 / (1u64 << 24) as f32
-            })
+            .map(|_| rng.random::<f32>())
             .collect();
         for sigma in [0.8, 4.0] {
             let kernel = gaussian_kernel(sigma);

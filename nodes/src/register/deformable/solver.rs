@@ -150,7 +150,8 @@ mod tests {
         // Surface rows on a shell through a 17 x 15 x 12 lattice, the stiff
         // bending of the fit's first stage: what block-Jacobi took
         // hundreds of iterations for. The solution is checked against the
-        // normal equations' residual computed row by row.
+        // normal equations' true residual, b - A x, not only the one CG's
+        // recurrence carries (A's assembly is tested on its own).
         let mut rng = ChaCha8Rng::seed_from_u64(11);
         let dims = [17, 15, 12];
         let nodes: usize = dims.iter().product();
@@ -183,7 +184,7 @@ mod tests {
         let (x, report) = system.solve(&vec![Vector3::zeros(); nodes], 1e-10, 200);
         assert!(report.relative_residual <= 1e-10, "{report:?}");
         assert!(report.iterations < 60, "{report:?}");
-        // The normal equations' residual, with A applied row by row.
+        // The true residual b - A x, recomputed from the solution.
         let regularisers = Regularisers {
             edge: system.edge_weight,
             bend: system.bend_weight,

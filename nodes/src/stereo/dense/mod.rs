@@ -22,6 +22,7 @@ mod simd;
 mod slanted;
 mod texture;
 mod volume;
+mod window_sums;
 
 pub use block_match::{BlockCost, block_match};
 pub use cost::{CensusCosts, bt_costs, census_costs, census_transform, check_census_window};

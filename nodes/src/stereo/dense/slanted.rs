@@ -22,7 +22,7 @@
 //! crate refines disparities.
 
 use super::pair::GreyImage;
-use super::simd::{Isa, kernels};
+use super::simd::Isa;
 use nalgebra::{SMatrix, SVector};
 use rayon::prelude::*;
 
@@ -33,6 +33,10 @@ const OFF_SHAPE_PX: f64 = 0.5;
 /// The map samples a window's shape is fitted to: a grid of this many
 /// columns and rows spanning the window.
 const SHAPE_GRID: isize = 7;
+
+/// The most samples a shape's refit leaves out by updating the fit through
+/// all of them; more are refitted from scratch.
+const MAX_LEFT_OUT: usize = 12;
 
 /// A step this small ends the iterations, px.
 const STEP_CONVERGED_PX: f32 = 1e-3;
@@ -251,6 +255,10 @@ struct ShapeFit {
     /// costly part: this runs for every pixel and window size): the
     /// coefficients are `solve * samples`.
     solve: Option<SMatrix<f64, 6, { (SHAPE_GRID * SHAPE_GRID) as usize }>>,
+    /// With `solve`: the hat matrix `terms[k] . solve[:, l]` (row-major),
+    /// how sample l's value moves the fit at sample k; a refit without a
+    /// few samples is taken from it (see [`ShapeFit::leave_out`]).
+    hat: Vec<f64>,
     /// The normal equations' sum over every sample, unpinned.
     normal_all: SMatrix<f64, 6, 6>,
     quadratic: bool,
@@ -283,6 +291,7 @@ impl ShapeFit {
             offsets,
             terms,
             solve: None,
+            hat: Vec::new(),
             normal_all,
             quadratic,
             scale,
@@ -293,7 +302,78 @@ impl ShapeFit {
                 (inverse * fit.terms[k])[r]
             })
         });
+        if let Some(solve) = &fit.solve {
+            fit.hat = (0..fit.terms.len())
+                .flat_map(|k| {
+                    let t = fit.terms[k];
+                    solve.column_iter().map(move |column| t.dot(&column))
+                })
+                .collect();
+        }
         fit
+    }
+
+    /// The least-squares coefficients through the samples `used`: on the
+    /// whole grid, from the fit through every sample with the few left out
+    /// taken away by [`ShapeFit::leave_out`] (most windows: a map's holes
+    /// and the samples off its shape are few), else from scratch.
+    fn fit_without(&self, samples: &[f64], used: &[bool]) -> Option<SVector<f64, 6>> {
+        if let Some(solve) = &self.solve {
+            let mut excluded = [0usize; (SHAPE_GRID * SHAPE_GRID) as usize];
+            let mut left_out = 0;
+            for k in (0..used.len()).filter(|&k| !used[k]) {
+                if left_out == MAX_LEFT_OUT {
+                    return self.solve_over(samples, used);
+                }
+                excluded[left_out] = k;
+                left_out += 1;
+            }
+            let all = solve
+                * SVector::<f64, { (SHAPE_GRID * SHAPE_GRID) as usize }>::from_column_slice(
+                    samples,
+                );
+            if left_out == 0 {
+                return Some(all);
+            }
+            if let Some(c) = self.leave_out(&all, samples, &excluded[..left_out]) {
+                return Some(c);
+            }
+        }
+        self.solve_over(samples, used)
+    }
+
+    /// The fit through every sample but those `excluded` (a few: at most
+    /// [`MAX_LEFT_OUT`]), from the fit `all` through every sample, by the
+    /// leave-out (Sherman-Morrison-Woodbury) update: with H the hat matrix
+    /// and r the excluded samples' residuals, the refit is
+    /// `all - solve[:, E] (I - H[E, E])^-1 r[E]`. `None` without `solve`,
+    /// or where the samples left do not fix the shape.
+    fn leave_out(
+        &self,
+        all: &SVector<f64, 6>,
+        samples: &[f64],
+        excluded: &[usize],
+    ) -> Option<SVector<f64, 6>> {
+        let solve = self.solve.as_ref()?;
+        let k = excluded.len();
+        if k > MAX_LEFT_OUT {
+            return None;
+        }
+        let n = self.terms.len();
+        let mut m = [0.0f64; MAX_LEFT_OUT * MAX_LEFT_OUT];
+        let mut z = [0.0f64; MAX_LEFT_OUT];
+        for (a, &ea) in excluded.iter().enumerate() {
+            for (b, &eb) in excluded.iter().enumerate() {
+                m[a * k + b] = f64::from(a == b) - self.hat[ea * n + eb];
+            }
+            z[a] = samples[ea] - self.terms[ea].dot(all);
+        }
+        solve_spd_in_place(&mut m[..k * k], &mut z[..k])?;
+        let mut c = *all;
+        for (a, &ea) in excluded.iter().enumerate() {
+            c -= solve.column(ea) * z[a];
+        }
+        Some(c)
     }
 
     /// The normal equations' matrix over the samples `used`.
@@ -356,19 +436,25 @@ impl ShapeFit {
         if count * 2 < samples.len() {
             return None;
         }
-        let first = match &self.solve {
-            Some(solve) if count == samples.len() => {
-                solve * SVector::<f64, { (SHAPE_GRID * SHAPE_GRID) as usize }>::from(samples)
-            }
-            _ => self.solve_over(&samples, &valid)?,
-        };
+        // A hole's sample is left out of the fit, and holds the valid ones'
+        // mean meanwhile: any value gives the same fit (see
+        // `fit_without`), a near one keeps the update well conditioned.
+        let mean = (0..samples.len())
+            .filter(|&k| valid[k])
+            .map(|k| samples[k])
+            .sum::<f64>()
+            / count as f64;
+        for k in (0..samples.len()).filter(|&k| !valid[k]) {
+            samples[k] = mean;
+        }
+        let first = self.fit_without(&samples, &valid)?;
         let inliers: Vec<bool> = (0..samples.len())
             .map(|k| valid[k] && (samples[k] - self.terms[k].dot(&first)).abs() <= OFF_SHAPE_PX)
             .collect();
         let c = if inliers == valid {
             first
         } else {
-            self.solve_over(&samples, &inliers).unwrap_or(first)
+            self.fit_without(&samples, &inliers).unwrap_or(first)
         };
         let (s1, s2) = (self.scale, self.scale * self.scale);
         Some([
@@ -379,6 +465,45 @@ impl ShapeFit {
             (c[5] / s2) as f32,
         ])
     }
+}
+
+/// Solves `m x = z` in place (`z` becomes x) for a symmetric positive
+/// definite `m` (row-major, `z.len()` square), by Cholesky; `None` where `m`
+/// is not positive definite (to rounding).
+fn solve_spd_in_place(m: &mut [f64], z: &mut [f64]) -> Option<()> {
+    let k = z.len();
+    // Lower factor L (m = L L^T) over m's lower triangle.
+    for j in 0..k {
+        let mut diagonal = m[j * k + j];
+        for p in 0..j {
+            diagonal -= m[j * k + p] * m[j * k + p];
+        }
+        if diagonal <= 1e-12 {
+            return None;
+        }
+        let root = diagonal.sqrt();
+        m[j * k + j] = root;
+        for i in j + 1..k {
+            let mut v = m[i * k + j];
+            for p in 0..j {
+                v -= m[i * k + p] * m[j * k + p];
+            }
+            m[i * k + j] = v / root;
+        }
+    }
+    for i in 0..k {
+        for p in 0..i {
+            z[i] -= m[i * k + p] * z[p];
+        }
+        z[i] /= m[i * k + i];
+    }
+    for i in (0..k).rev() {
+        for p in i + 1..k {
+            z[i] -= m[p * k + i] * z[p];
+        }
+        z[i] /= m[i * k + i];
+    }
+    Some(())
 }
 
 /// The rectified pair as the windows read it: grey levels as floats,
@@ -447,208 +572,51 @@ impl Window {
     }
 }
 
-/// Lanes of the window kernel's f64 sums (one AVX2 register).
-const LANES: usize = 4;
-
-/// A window row's samples, padded to whole lanes: the largest side
-/// (`2 * 15 + 1`) rounded up.
-const ROW_CAPACITY: usize = 32;
-
-/// 2^23: a float in [2^23, 2^24) holds an integer in its low mantissa bits.
-const TWO_POW_23: f32 = 8_388_608.0;
-
-/// 0, 1, 2, ...: a row's column offsets as floats, for whole registers.
-const COLUMN: [f32; ROW_CAPACITY] = {
-    let mut c = [0.0f32; ROW_CAPACITY];
-    let mut k = 0;
-    while k < ROW_CAPACITY {
-        c[k] = k as f32;
-        k += 1;
-    }
-    c
-};
-
-kernels! {
-    /// One pass of sums over the window of half-size `half` around (`x`,
-    /// `y`) warped by `shape` at disparity `d` (`left` and `right` row-major
-    /// grey levels, `w` px wide): sum(l - r), sum((l - r)^2), sum(g),
-    /// sum((l - r) g), sum(g^2), with r the right image linearly
-    /// interpolated at the warped column and g its slope there. No buffer
-    /// per window (this runs for every pixel and iteration): with
-    /// e = (l - r) - mean(l - r) and gz = g - mean(g), the caller takes
-    /// sum(e gz) = sum((l - r) g) - n mean(l - r) mean(g) and
-    /// sum(gz^2) = sum(g^2) - n mean(g)^2 from these. `None` where a warped
-    /// column leaves the right image's interior. Each row is taken in three
-    /// passes (columns, the samples they read, the sums) so the first and
-    /// last vectorise: the loads between them are a gather.
-    fn slanted_window_sums(
-        left: &[f32],
-        right: &[f32],
-        w: usize,
-        x: isize,
-        y: isize,
-        half: isize,
-        d: f32,
-        shape: [f32; 5],
-    ) -> Option<[f64; 5]> {
-        let side = (2 * half + 1) as usize;
-        if side > ROW_CAPACITY {
-            return None;
-        }
-        let [gx, gy, gxx, gxy, gyy] = shape;
-        let (mut x0, mut t) = ([0u32; ROW_CAPACITY], [0.0f32; ROW_CAPACITY]);
-        // Lanes past `side` are never written: zeros, they add nothing.
-        let (mut l, mut r0, mut r1) = (
-            [0.0f32; ROW_CAPACITY],
-            [0.0f32; ROW_CAPACITY],
-            [0.0f32; ROW_CAPACITY],
-        );
-        let mut sums = [[0.0f64; LANES]; 5];
-        let (lowest, highest) = (1.0f32, (w - 2) as f32);
-        let (first, half_f, side_f) = ((x - half) as usize, half as f32, side as f32);
-        let first_f = first as f32;
-        for j in -half..=half {
-            let yy = (y + j) as usize;
-            let row = yy * w..(yy + 1) * w;
-            let (left_row, right_row) = (&left[row.clone()], &right[row]);
-            let jf = j as f32;
-            // The warp along this row: d + (gy j + gyy j^2) + (gx + gxy j) i + gxx i^2.
-            let (base, linear) = (d + gy * jf + gyy * jf * jf, gx + gxy * jf);
-            // Whole registers, past `side` too (those lanes are not read):
-            // the warped columns, their floors and fractions.
-            let mut outside = 0u32;
-            for k in 0..ROW_CAPACITY {
-                let (col, i) = (first_f + COLUMN[k], COLUMN[k] - half_f);
-                let at = col - (base + linear * i + gxx * i * i);
-                let used = COLUMN[k] < side_f;
-                outside |= (used & !(at >= lowest && at < highest)) as u32;
-                let floor = at.floor();
-                // The floor as an integer without a saturating conversion
-                // per lane (which does not vectorise): below 2^23 its bits
-                // past 2^23 are the integer. Lanes outside are not read.
-                x0[k] = (floor + TWO_POW_23)
-                    .to_bits()
-                    .wrapping_sub(TWO_POW_23.to_bits());
-                t[k] = at - floor;
-            }
-            if outside != 0 {
-                return None;
-            }
-            for k in 0..side {
-                let &[a, b] = right_row[x0[k] as usize..].first_chunk()?;
-                (r0[k], r1[k]) = (a, b);
-            }
-            l[..side].copy_from_slice(&left_row[first..first + side]);
-            for lane in (0..side).step_by(LANES) {
-                for k in lane..lane + LANES {
-                    let r = (r0[k] + (r1[k] - r0[k]) * t[k]) as f64;
-                    // The derivative of what is matched, the interpolated
-                    // row: its slope between the samples around. (An
-                    // interpolated central difference is not the cost's
-                    // gradient, so its fixed point is not the cost's
-                    // minimum: on the lab phantom at 6 DN it left the
-                    // disparities 0.01 px lower and their spread 10 % wider.)
-                    let g = (r1[k] - r0[k]) as f64;
-                    let lr = l[k] as f64 - r;
-                    let m = k - lane;
-                    sums[0][m] += lr;
-                    sums[1][m] += lr * lr;
-                    sums[2][m] += g;
-                    sums[3][m] += lr * g;
-                    sums[4][m] += g * g;
-                }
-            }
-        }
-        Some(sums.map(|s| s.iter().sum()))
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
 
-    /// The window sums as first written: one scalar loop, sample by
-    /// sample.
-    #[allow(clippy::too_many_arguments)]
-    fn window_sums_by_sample(
-        left: &[f32],
-        right: &[f32],
-        w: usize,
-        x: isize,
-        y: isize,
-        half: isize,
-        d: f32,
-        [gx, gy, gxx, gxy, gyy]: [f32; 5],
-    ) -> Option<[f64; 5]> {
-        let mut sums = [0.0f64; 5];
-        for j in -half..=half {
-            let row = (y + j) as usize * w;
-            let jf = j as f32;
-            let (base, linear) = (d + gy * jf + gyy * jf * jf, gx + gxy * jf);
-            for ii in -half..=half {
-                let i = ii as f32;
-                let xr = (x + ii) as f32 - (base + linear * i + gxx * i * i);
-                if xr < 1.0 || xr >= (w - 2) as f32 {
-                    return None;
-                }
-                let x0 = xr.floor() as usize;
-                let (r0, r1) = (right[row + x0], right[row + x0 + 1]);
-                let r = (r0 + (r1 - r0) * (xr - x0 as f32)) as f64;
-                let g = (r1 - r0) as f64;
-                let lr = left[row + (x + ii) as usize] as f64 - r;
-                for (s, v) in sums.iter_mut().zip([lr, lr * lr, g, lr * g, g * g]) {
-                    *s += v;
-                }
-            }
-        }
-        Some(sums)
+    #[test]
+    fn a_small_positive_definite_system_is_solved_and_a_singular_one_refused() {
+        // [4 2; 2 3] x = [2; 1] -> x = [0.5, 0].
+        let (mut m, mut z) = ([4.0, 2.0, 2.0, 3.0], [2.0, 1.0]);
+        assert!(solve_spd_in_place(&mut m, &mut z).is_some());
+        assert!((z[0] - 0.5).abs() < 1e-15 && z[1].abs() < 1e-15, "{z:?}");
+        let (mut m, mut z) = ([1.0, 1.0, 1.0, 1.0], [1.0, 1.0]);
+        assert!(solve_spd_in_place(&mut m, &mut z).is_none());
     }
 
     #[test]
-    fn the_window_kernel_sums_what_the_plain_loop_sums_on_every_instruction_set() {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
-        let (w, h) = (90, 40);
-        let image = |rng: &mut rand_chacha::ChaCha8Rng| -> Vec<f32> {
-            (0..w * h)
-                .map(|_| rng.random_range(0..256) as f32)
-                .collect()
-        };
-        let (left, right) = (image(&mut rng), image(&mut rng));
-        let (mut compared, mut outside) = (0, 0);
-        for _ in 0..400 {
-            let half = rng.random_range(1..=15i64) as isize;
-            let (x, y) = (
-                rng.random_range(half as i64..w as i64 - half as i64) as isize,
-                rng.random_range(half as i64..h as i64 - half as i64) as isize,
-            );
-            let d = rng.random_range(-3.0..20.0f32);
-            let shape = [
-                rng.random_range(-0.5..0.5f32),
-                rng.random_range(-0.5..0.5f32),
-                rng.random_range(-0.02..0.02f32),
-                rng.random_range(-0.02..0.02f32),
-                rng.random_range(-0.02..0.02f32),
-            ];
-            let plain = window_sums_by_sample(&left, &right, w, x, y, half, d, shape);
-            for isa in [Isa::Scalar, Isa::detect()] {
-                let kernel = isa.slanted_window_sums(&left, &right, w, x, y, half, d, shape);
-                match (plain, kernel) {
-                    (Some(a), Some(b)) => {
-                        for (a, b) in a.iter().zip(b) {
-                            assert!((a - b).abs() <= 1e-9 * a.abs().max(1.0), "{a} vs {b}");
-                        }
-                        compared += 1;
+    fn leaving_samples_out_by_update_matches_the_refit_from_scratch() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        for quadratic in [false, true] {
+            for half in [4, 6, 10] {
+                let fit = ShapeFit::new(half, quadratic);
+                let n = fit.terms.len();
+                for _ in 0..50 {
+                    let samples: Vec<f64> = (0..n).map(|_| rng.random_range(10.0..12.0)).collect();
+                    let all = fit.solve.unwrap() * SVector::<f64, 49>::from_column_slice(&samples);
+                    let k = rng.random_range(1..=MAX_LEFT_OUT);
+                    let mut used = vec![true; n];
+                    while used.iter().filter(|u| !**u).count() < k {
+                        used[rng.random_range(0..n)] = false;
                     }
-                    (None, None) => outside += 1,
-                    (a, b) => panic!("plain loop {a:?}, kernel on {isa:?} {b:?}"),
+                    let excluded: Vec<usize> = (0..n).filter(|&i| !used[i]).collect();
+                    let updated = fit.leave_out(&all, &samples, &excluded).unwrap();
+                    let scratch = fit.solve_over(&samples, &used).unwrap();
+                    assert!(
+                        (updated - scratch).amax() < 1e-10,
+                        "half {half}, {k} left out: {updated} vs {scratch}"
+                    );
                 }
+                let too_many: Vec<usize> = (0..=MAX_LEFT_OUT).collect();
+                assert!(
+                    fit.leave_out(&SVector::zeros(), &[0.0; 49], &too_many)
+                        .is_none()
+                );
             }
         }
-        assert!(
-            compared > 200 && outside > 20,
-            "{compared} compared, {outside} outside"
-        );
     }
 
     /// A weakly textured surface whose true disparity depends on the column

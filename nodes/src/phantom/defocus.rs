@@ -62,24 +62,7 @@ pub fn gaussian_blur(image: &[[f32; 3]], w: usize, h: usize, sigma: f64) -> Vec<
         let mut dst = vec![[0.0f32; 3]; w * h];
         dst.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
             let src_row = &src[y * w..(y + 1) * w];
-            let r = radius as usize;
-            for (x, px) in row.iter_mut().enumerate() {
-                let mut acc = [0.0f32; 3];
-                if x >= r && x + r < w {
-                    // Inside: the taps are a plain window (no clamping to
-                    // stop the loop vectorising), summed in the same order.
-                    for (&kw, s) in kernel.iter().zip(&src_row[x - r..=x + r]) {
-                        (0..3).for_each(|c| acc[c] += kw * s[c]);
-                    }
-                } else {
-                    for (k, &kw) in kernel.iter().enumerate() {
-                        let sx = (x as isize + k as isize - radius).clamp(0, w as isize - 1);
-                        let s = src_row[sx as usize];
-                        (0..3).for_each(|c| acc[c] += kw * s[c]);
-                    }
-                }
-                *px = acc;
-            }
+            blur_row(row, src_row, &kernel);
         });
         dst
     };
@@ -90,14 +73,53 @@ pub fn gaussian_blur(image: &[[f32; 3]], w: usize, h: usize, sigma: f64) -> Vec<
         dst.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
             for (k, &kw) in kernel.iter().enumerate() {
                 let sy = (y as isize + k as isize - radius).clamp(0, h as isize - 1) as usize;
-                for (px, s) in row.iter_mut().zip(&src[sy * w..(sy + 1) * w]) {
-                    (0..3).for_each(|c| px[c] += kw * s[c]);
+                let src_row = src[sy * w..(sy + 1) * w].as_flattened();
+                for (o, &s) in row.as_flattened_mut().iter_mut().zip(src_row) {
+                    *o += kw * s;
                 }
             }
         });
         dst
     };
     down_columns(&along_rows(image))
+}
+
+/// One row of `src` blurred along itself by `kernel` (odd length, centred)
+/// into `row` (zeros on entry), edges clamped: each output sums its taps in
+/// kernel order. The inside runs tap by tap over the whole run of outputs,
+/// RGB flattened, so the loop vectorises (one tap per output at a time,
+/// still in kernel order: the bits of a tap loop per output).
+fn blur_row(row: &mut [[f32; 3]], src: &[[f32; 3]], kernel: &[f32]) {
+    let (w, r) = (row.len(), kernel.len() / 2);
+    let clamped = |x: usize| {
+        let mut acc = [0.0f32; 3];
+        for (k, &kw) in kernel.iter().enumerate() {
+            let s = src[(x + k).saturating_sub(r).min(w - 1)];
+            (0..3).for_each(|c| acc[c] += kw * s[c]);
+        }
+        acc
+    };
+    if w <= 2 * r {
+        for (x, px) in row.iter_mut().enumerate() {
+            *px = clamped(x);
+        }
+        return;
+    }
+    let inside = r..w - r;
+    {
+        let out = row[inside.clone()].as_flattened_mut();
+        let src = src.as_flattened();
+        for (k, &kw) in kernel.iter().enumerate() {
+            // Output x reads src[x - r + k]: the run from 3 k floats in.
+            let taps = &src[3 * k..3 * k + out.len()];
+            for (o, &t) in out.iter_mut().zip(taps) {
+                *o += kw * t;
+            }
+        }
+    }
+    for x in (0..r).chain(w - r..w) {
+        row[x] = clamped(x);
+    }
 }
 
 /// The diameters of the layers, px: 0, then 0.5, 1, 2, ... up to the first at
@@ -188,6 +210,32 @@ mod tests {
         assert!((lens.blur_circle_px(400.0) - expected).abs() < 1e-12);
         assert_eq!(lens.blur_circle_px(500.0), 0.0);
         assert!((lens.blur_circle_px(f64::INFINITY) - 4.0 * 8.0 / 492.0 / 0.006).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_row_pass_gives_the_bits_of_a_tap_loop_per_output() {
+        let w = 37;
+        let src: Vec<[f32; 3]> = (0..w)
+            .map(|x| [x as f32 * 0.37 % 1.0, (x * x) as f32 * 0.011 % 1.0, 0.5])
+            .collect();
+        for taps in [1usize, 3, 7, 13, 75] {
+            let kernel: Vec<f32> = (0..taps).map(|k| 0.1 + k as f32 * 0.013).collect();
+            let r = taps as isize / 2;
+            let mut row = vec![[0.0f32; 3]; w];
+            blur_row(&mut row, &src, &kernel);
+            for (x, px) in row.iter().enumerate() {
+                let mut acc = [0.0f32; 3];
+                for (k, &kw) in kernel.iter().enumerate() {
+                    let sx = (x as isize + k as isize - r).clamp(0, w as isize - 1);
+                    (0..3).for_each(|c| acc[c] += kw * src[sx as usize][c]);
+                }
+                assert_eq!(
+                    px.map(f32::to_bits),
+                    acc.map(f32::to_bits),
+                    "{taps} taps, x {x}"
+                );
+            }
+        }
     }
 
     #[test]

@@ -2,14 +2,21 @@
 //! every run of a session, e.g. the variants of a sweep); [`DiskCache`] keeps them
 //! across runs.
 //!
-//! A disk entry is one file `DIR/v{FORMAT_VERSION}/ab/<key>.entry`:
-//! magic `FUSEGRPH`, format version (u32), payload length (u64), blake3 of the
-//! payload (32 bytes), payload (the key it was written for, metrics, outputs,
-//! figures, then notes). An entry copied over another key's file fails the
-//! key test and is recomputed, never read as that key's result. It is written to a unique
-//! temporary file in the same folder and renamed into place, so readers see either
-//! nothing or a whole entry and concurrent writers of one key both succeed. A
-//! truncated or corrupt entry fails its length or checksum test and is recomputed.
+//! A disk entry is one file `DIR/v{FORMAT_VERSION}/ab/<key>.entry`: magic
+//! `FUSEGRPH`, format version (u32), the lengths of its two parts (u64 each),
+//! blake3 of the first, then the parts. The first (the meta) holds the key it
+//! was written for, the op, metrics, each output's place (a `Path` value
+//! inline, any other as the offset, length and blake3 of its bytes in the
+//! second part), figures and notes; the second holds the other outputs'
+//! values one after another. So a run reads an entry's meta alone where no
+//! node downstream computes ([`DiskCache::load_meta`]: a cached re-run reads
+//! kilobytes, not every image and cloud it made), and a value is still
+//! checked against its own hash before it is used. An entry copied over
+//! another key's file fails the key test and is recomputed, never read as
+//! that key's result. It is written to a unique temporary file in the same
+//! folder and renamed into place, so readers see either nothing or a whole
+//! entry and concurrent writers of one key both succeed. A truncated or
+//! corrupt entry fails its length or a checksum and is recomputed.
 
 use crate::figure::{Figure, FigureData};
 use crate::key::NodeKey;
@@ -31,9 +38,9 @@ pub fn default_dir(graph_file: &Path) -> PathBuf {
 }
 
 /// Version of the entry layout and of the value encoding; bump on any change.
-pub const FORMAT_VERSION: u32 = 4;
+pub const FORMAT_VERSION: u32 = 5;
 const MAGIC: &[u8; 8] = b"FUSEGRPH";
-const HEADER_LEN: usize = 8 + 4 + 8 + 32;
+const HEADER_LEN: usize = 8 + 4 + 8 + 8 + 32;
 
 /// What a node produced: its outputs, metrics and figures.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -48,6 +55,10 @@ pub struct CacheEntry {
     pub figures: Arc<[Figure]>,
     /// The op's warnings (see [`crate::RunCtx::note`]).
     pub notes: Arc<[String]>,
+    /// Outputs whose values were left on disk ([`DiskCache::load_meta`]):
+    /// named here, absent from `outputs`; [`DiskCache::load`] reads them.
+    /// Empty for a whole entry.
+    pub on_disk: Vec<String>,
 }
 
 impl CacheEntry {
@@ -169,6 +180,26 @@ impl DiskCache {
         }
     }
 
+    /// Reads and verifies the meta of the entry for `key`: its metrics,
+    /// figures, notes and `Path` outputs, the other outputs named in
+    /// [`CacheEntry::on_disk`] and left unread.
+    pub fn load_meta(&self, key: &NodeKey) -> Lookup {
+        let path = self.entry_path(key);
+        match read_entry_meta(&path) {
+            Ok(Ok(bytes)) => match decode_meta(&bytes, key) {
+                Ok((mut entry, stored)) => {
+                    mark_used(&path);
+                    entry.on_disk = stored.into_iter().map(|s| s.port).collect();
+                    Lookup::Hit(self.with_paths(entry, PathsTo::Absolute))
+                }
+                Err(why) => Lookup::Corrupt(format!("{}: {why}", path.display())),
+            },
+            Ok(Err(why)) => Lookup::Corrupt(format!("{}: {why}", path.display())),
+            Err(e) if e.kind() == io::ErrorKind::NotFound => Lookup::Miss,
+            Err(e) => Lookup::Corrupt(format!("{}: {e}", path.display())),
+        }
+    }
+
     /// Writes the entry for `key` atomically (temporary file, then rename).
     pub fn store(&self, key: &NodeKey, entry: &CacheEntry) -> io::Result<()> {
         let bytes = encode_entry(key, &self.with_paths(entry.clone(), PathsTo::Relative));
@@ -224,10 +255,26 @@ impl DiskCache {
 
 /// The bytes of the entry file at `path`, read only once its kind and size
 /// make sense: a regular file (a FIFO would block, a link to a device never
-/// end) whose length is the header's plus the payload length the header
+/// end) whose length is the header's plus the part lengths the header
 /// declares. So a damaged entry costs a header read, not its size in memory.
 /// The inner error says why an existing file is not an entry.
 fn read_entry_bytes(path: &Path) -> io::Result<Result<Vec<u8>, String>> {
+    read_entry(path, Part::Whole)
+}
+
+/// The header and meta of the entry file at `path`, checked as
+/// [`read_entry_bytes`] checks a whole one.
+fn read_entry_meta(path: &Path) -> io::Result<Result<Vec<u8>, String>> {
+    read_entry(path, Part::Meta)
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum Part {
+    Meta,
+    Whole,
+}
+
+fn read_entry(path: &Path, part: Part) -> io::Result<Result<Vec<u8>, String>> {
     use std::io::Read;
     let meta = std::fs::metadata(path)?;
     if !meta.is_file() {
@@ -250,25 +297,46 @@ fn read_entry_bytes(path: &Path) -> io::Result<Result<Vec<u8>, String>> {
             meta.len()
         )));
     }
-    let declared = u64::from_le_bytes(header[12..20].try_into().expect("8 bytes"));
-    let expected = (HEADER_LEN as u64).checked_add(declared);
+    let (meta_len, values_len) = part_lengths(&header);
+    let expected = (HEADER_LEN as u64)
+        .checked_add(meta_len)
+        .and_then(|n| n.checked_add(values_len));
     if expected != Some(meta.len()) {
         return Ok(Err(format!(
-            "{} bytes, but its header declares a {declared}-byte payload (truncated, grown or overwritten)",
+            "{} bytes, but its header declares parts of {meta_len} and {values_len} bytes (truncated, grown or overwritten)",
             meta.len()
         )));
     }
-    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    let wanted = match part {
+        Part::Meta => meta_len,
+        Part::Whole => meta_len + values_len,
+    };
+    let mut bytes = Vec::with_capacity(HEADER_LEN + wanted as usize);
     bytes.extend_from_slice(&header);
     // Read no more than declared, should the file grow meanwhile.
-    file.take(declared).read_to_end(&mut bytes)?;
+    file.take(wanted).read_to_end(&mut bytes)?;
     Ok(Ok(bytes))
 }
 
+/// The meta's and the values' lengths a header declares, bytes.
+fn part_lengths(header: &[u8]) -> (u64, u64) {
+    let at = |i: usize| u64::from_le_bytes(header[i..i + 8].try_into().expect("8 bytes"));
+    (at(12), at(20))
+}
+
+/// Where an output's value lies in an entry's second part.
+struct StoredValue {
+    port: String,
+    offset: usize,
+    len: usize,
+    hash: [u8; 32],
+}
+
 fn encode_entry(key: &NodeKey, entry: &CacheEntry) -> Vec<u8> {
-    let mut payload = Vec::new();
-    payload.extend_from_slice(&key.0);
-    let mut w = Writer(&mut payload);
+    let mut meta = Vec::new();
+    let mut values = Vec::new();
+    meta.extend_from_slice(&key.0);
+    let mut w = Writer(&mut meta);
     // First after the key, so `fusegraph cache stats` reads it without the rest.
     w.str(&entry.op);
     w.usize(entry.metrics.len());
@@ -279,9 +347,19 @@ fn encode_entry(key: &NodeKey, entry: &CacheEntry) -> Vec<u8> {
     w.usize(entry.outputs.0.len());
     for (port, value) in &entry.outputs.0 {
         w.str(port);
-        encode_value(value, w.0);
+        if matches!(value, Value::Path(_)) {
+            // A path is checked against its files on every lookup: inline.
+            w.u8(0);
+            encode_value(value, w.0);
+        } else {
+            let offset = values.len();
+            encode_value(value, &mut values);
+            w.u8(1);
+            w.usize(offset);
+            w.usize(values.len() - offset);
+            w.u8s(blake3::hash(&values[offset..]).as_bytes());
+        }
     }
-    let mut w = Writer(&mut payload);
     w.usize(entry.figures.len());
     for f in entry.figures.iter() {
         w.str(&f.name);
@@ -306,16 +384,63 @@ fn encode_entry(key: &NodeKey, entry: &CacheEntry) -> Vec<u8> {
     for n in entry.notes.iter() {
         w.str(n);
     }
-    let mut bytes = Vec::with_capacity(HEADER_LEN + payload.len());
+    let mut bytes = Vec::with_capacity(HEADER_LEN + meta.len() + values.len());
     bytes.extend_from_slice(MAGIC);
     bytes.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
-    bytes.extend_from_slice(&(payload.len() as u64).to_le_bytes());
-    bytes.extend_from_slice(blake3::hash(&payload).as_bytes());
-    bytes.extend_from_slice(&payload);
+    bytes.extend_from_slice(&(meta.len() as u64).to_le_bytes());
+    bytes.extend_from_slice(&(values.len() as u64).to_le_bytes());
+    bytes.extend_from_slice(blake3::hash(&meta).as_bytes());
+    bytes.extend_from_slice(&meta);
+    bytes.extend_from_slice(&values);
     bytes
 }
 
+/// A whole entry from its bytes: the meta, then every stored value checked
+/// against its hash.
 fn decode_entry(bytes: &[u8], key: &NodeKey) -> Result<CacheEntry, String> {
+    let (mut entry, stored) = decode_meta(bytes, key)?;
+    let (meta_len, values_len) = part_lengths(bytes);
+    let values = &bytes[HEADER_LEN + meta_len as usize..];
+    if values.len() as u64 != values_len {
+        return Err(format!(
+            "truncated: values of {} bytes, header says {values_len}",
+            values.len()
+        ));
+    }
+    // The values follow one another and fill the part: no byte unchecked.
+    let mut next = 0;
+    for s in stored {
+        if s.offset != next || s.offset + s.len > values.len() {
+            return Err(format!(
+                "output `{}`: its value lies outside the entry",
+                s.port
+            ));
+        }
+        next = s.offset + s.len;
+        let value = &values[s.offset..next];
+        if blake3::hash(value).as_bytes() != &s.hash {
+            return Err(format!("output `{}`: checksum mismatch", s.port));
+        }
+        let (decoded, used) =
+            crate::value::decode_value(value).map_err(|e| format!("output `{}`: {e}", s.port))?;
+        if used != value.len() {
+            return Err(format!(
+                "output `{}`: {} bytes past its value",
+                s.port,
+                value.len() - used
+            ));
+        }
+        entry.outputs.0.insert(s.port, decoded);
+    }
+    if next != values.len() {
+        return Err(format!("{} bytes past the last value", values.len() - next));
+    }
+    Ok(entry)
+}
+
+/// The meta of an entry (its header and first part, at least): the entry
+/// with its inline outputs, and where the others lie.
+fn decode_meta(bytes: &[u8], key: &NodeKey) -> Result<(CacheEntry, Vec<StoredValue>), String> {
     if bytes.len() < HEADER_LEN || &bytes[..8] != MAGIC {
         return Err(format!(
             "not a cache entry ({} bytes, bad header)",
@@ -328,19 +453,29 @@ fn decode_entry(bytes: &[u8], key: &NodeKey) -> Result<CacheEntry, String> {
             "format version {version}, expected {FORMAT_VERSION}"
         ));
     }
-    let len = u64::from_le_bytes(bytes[12..20].try_into().expect("8 bytes"));
-    let payload = &bytes[HEADER_LEN..];
-    if payload.len() as u64 != len {
+    let (meta_len, values_len) = part_lengths(bytes);
+    // The bytes are the header and meta (a meta read) or the whole entry.
+    let with_meta = (HEADER_LEN as u64).saturating_add(meta_len);
+    let read = bytes.len() as u64;
+    if read != with_meta && Some(read) != with_meta.checked_add(values_len) {
         return Err(format!(
-            "truncated: payload of {} bytes, header says {len}",
-            payload.len()
+            "{read} bytes, but its header declares parts of {meta_len} and {values_len} bytes (truncated, grown or overwritten)"
         ));
     }
-    if blake3::hash(payload).as_bytes() != &bytes[20..52] {
+    let meta = usize::try_from(meta_len)
+        .ok()
+        .and_then(|len| bytes.get(HEADER_LEN..HEADER_LEN.checked_add(len)?))
+        .ok_or_else(|| {
+            format!(
+                "truncated: {} bytes of meta, header says {meta_len}",
+                bytes.len() - HEADER_LEN
+            )
+        })?;
+    if blake3::hash(meta).as_bytes() != &bytes[28..60] {
         return Err("checksum mismatch".into());
     }
-    if payload.len() < 32 || payload[..32] != key.0 {
-        let written_for = payload
+    if meta.len() < 32 || meta[..32] != key.0 {
+        let written_for = meta
             .get(..32)
             .map(|k| k.iter().map(|b| format!("{b:02x}")).collect::<String>())
             .unwrap_or_default();
@@ -349,7 +484,7 @@ fn decode_entry(bytes: &[u8], key: &NodeKey) -> Result<CacheEntry, String> {
             key.hex()
         ));
     }
-    let mut r = Reader::new(&payload[32..]);
+    let mut r = Reader::new(&meta[32..]);
     let err = |e: crate::value::CodecError| e.to_string();
     let mut entry = CacheEntry {
         op: r.str().map_err(err)?,
@@ -359,9 +494,29 @@ fn decode_entry(bytes: &[u8], key: &NodeKey) -> Result<CacheEntry, String> {
         let name = r.str().map_err(err)?;
         entry.metrics.insert(name, r.f64().map_err(err)?);
     }
+    let mut stored = Vec::new();
     for _ in 0..r.usize().map_err(err)? {
         let port = r.str().map_err(err)?;
-        entry.outputs.0.insert(port, r.value().map_err(err)?);
+        match r.u8().map_err(err)? {
+            0 => {
+                entry.outputs.0.insert(port, r.value().map_err(err)?);
+            }
+            1 => {
+                let (offset, len) = (r.usize().map_err(err)?, r.usize().map_err(err)?);
+                let hash: [u8; 32] = r
+                    .u8s()
+                    .map_err(err)?
+                    .try_into()
+                    .map_err(|_| format!("output `{port}`: a hash is 32 bytes"))?;
+                stored.push(StoredValue {
+                    port,
+                    offset,
+                    len,
+                    hash,
+                });
+            }
+            k => return Err(format!("output `{port}`: unknown place {k}")),
+        }
     }
     let mut figures = Vec::new();
     for _ in 0..r.usize().map_err(err)? {
@@ -386,7 +541,10 @@ fn decode_entry(bytes: &[u8], key: &NodeKey) -> Result<CacheEntry, String> {
         .map(|_| r.str().map_err(err))
         .collect::<Result<_, _>>()?;
     entry.notes = notes.into();
-    Ok(entry)
+    if !r.is_empty() {
+        return Err("bytes past the meta's end".into());
+    }
+    Ok((entry, stored))
 }
 
 /// The op an entry file records, read from the start of its payload (the
@@ -484,6 +642,32 @@ mod tests {
             other => panic!("{other:?}"),
         }
         assert!(matches!(cache.load(&a), Lookup::Hit(_)));
+    }
+
+    #[test]
+    fn a_meta_holds_all_but_the_stored_values_and_is_checked_whole() {
+        let dir = tempfile::tempdir().unwrap();
+        let cache = DiskCache::open(dir.path()).unwrap();
+        let key = NodeKey([5; 32]);
+        cache.store(&key, &sample()).unwrap();
+        let Lookup::Hit(meta) = cache.load_meta(&key) else {
+            panic!("no meta")
+        };
+        let whole = sample();
+        assert_eq!(meta.on_disk, ["table", "value"]);
+        assert!(meta.outputs.0.is_empty());
+        assert_eq!(
+            (&meta.op, &meta.metrics, &meta.figures, &meta.notes),
+            (&whole.op, &whole.metrics, &whole.figures, &whole.notes)
+        );
+        // Every byte of the header and meta is checked by a meta read.
+        let bytes = encode_entry(&key, &whole);
+        let (meta_len, _) = part_lengths(&bytes);
+        for i in 0..HEADER_LEN + meta_len as usize {
+            let mut b = bytes.clone();
+            b[i] ^= 0x10;
+            assert!(decode_meta(&b, &key).is_err(), "flip at {i}");
+        }
     }
 
     #[test]

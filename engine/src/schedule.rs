@@ -1,7 +1,10 @@
 //! The scheduler: runs a validated graph in dependency order, independent nodes in
 //! parallel on a rayon pool, reusing cached results by key. A node that fails
 //! (error or panic) stops only its downstream nodes, which are marked skipped;
-//! every other branch finishes.
+//! every other branch finishes. Before any node runs, every node's cached
+//! result is looked up by its key, and the values of the cached nodes a
+//! computing node reads are read (see [`Executor::plan`]): the rest stay on
+//! disk.
 
 use crate::cache::{CacheEntry, DiskCache, Lookup, MemoryCache};
 use crate::key::NodeKey;
@@ -106,7 +109,7 @@ pub fn run_graph(
     } else {
         ProgressBar::hidden()
     };
-    let exec = Executor {
+    let mut exec = Executor {
         graph,
         keys,
         options,
@@ -117,6 +120,7 @@ pub fn run_graph(
         readers_left,
         reports: (0..n).map(|_| OnceLock::new()).collect(),
         entries: (0..n).map(|_| Mutex::new(None)).collect(),
+        planned: Vec::new(),
         running: Mutex::new(BTreeSet::new()),
         progress,
     };
@@ -125,6 +129,11 @@ pub fn run_graph(
         .thread_name(|i| format!("fusegraph-{i}"))
         .build()
         .map_err(std::io::Error::other)?;
+    exec.planned = pool
+        .install(|| exec.plan())
+        .into_iter()
+        .map(Mutex::new)
+        .collect();
     // The roots are chosen before any node runs: a node released by its
     // upstream while this loop still ran would otherwise be spawned twice,
     // and its second run would release its own successors early.
@@ -186,6 +195,9 @@ struct Executor<'a> {
     /// Each node's outputs, set before its successors start; `None` where
     /// it produced none, or once released.
     entries: Vec<Mutex<Option<Arc<CacheEntry>>>>,
+    /// Each node's cached result found before the run (see
+    /// [`Executor::plan`]); `None` where it computes.
+    planned: Vec<Mutex<Option<Arc<CacheEntry>>>>,
     running: Mutex<BTreeSet<String>>,
     progress: ProgressBar,
 }
@@ -249,6 +261,26 @@ impl<'a> Executor<'a> {
             figures: Default::default(),
         };
 
+        let cached = |entry: Arc<CacheEntry>| {
+            tracing::info!(node = %node.id, "cached");
+            Slot {
+                report: NodeReport {
+                    figures: entry.figures.clone(),
+                    notes: entry.notes.clone(),
+                    ..report(NodeStatus::Cached, entry.metrics.clone(), None)
+                },
+                entry: Some(entry),
+            }
+        };
+        // Taken, not cloned: the entry is released with the slot's.
+        let planned = self.planned[i]
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .take();
+        if let Some(entry) = planned {
+            return cached(entry);
+        }
+
         let mut inputs = Inputs::default();
         for e in &node.inputs {
             let upstream = self.entry(e.from).clone();
@@ -277,17 +309,6 @@ impl<'a> Executor<'a> {
             inputs.0.insert(e.port.clone(), value.clone());
         }
 
-        let cached = |entry: Arc<CacheEntry>| {
-            tracing::info!(node = %node.id, "cached");
-            Slot {
-                report: NodeReport {
-                    figures: entry.figures.clone(),
-                    notes: entry.notes.clone(),
-                    ..report(NodeStatus::Cached, entry.metrics.clone(), None)
-                },
-                entry: Some(entry),
-            }
-        };
         if let Some(entry) = self.lookup(&node.id, node.op.spec(), &key) {
             return cached(entry);
         }
@@ -360,6 +381,7 @@ impl<'a> Executor<'a> {
             metrics: results.metrics,
             figures: results.figures.into(),
             notes: results.notes.into(),
+            on_disk: Vec::new(),
         });
         self.memory.insert(key, &entry);
         if let Some(disk) = &self.options.cache
@@ -434,6 +456,89 @@ impl<'a> Executor<'a> {
             }
             std::thread::sleep(std::time::Duration::from_millis(50));
         }
+    }
+
+    /// Each node's cached result, found before any node runs: from memory,
+    /// or the meta of its disk entry; then the values of those a node that
+    /// computes reads (every one's with `keep_outputs`), read and checked.
+    /// One whose values fail their checks computes instead, and the nodes
+    /// it reads then need theirs: until none changes. So a cached node
+    /// whose readers are all cached too costs its meta alone, and every
+    /// value a node receives was verified before the run began.
+    fn plan(&self) -> Vec<Option<Arc<CacheEntry>>> {
+        use rayon::prelude::*;
+        let n = self.graph.nodes.len();
+        let mut planned: Vec<Option<Arc<CacheEntry>>> = (0..n)
+            .into_par_iter()
+            .map(|i| self.lookup_meta(i))
+            .collect();
+        loop {
+            let unread: Vec<usize> = (0..n)
+                .filter(|&i| planned[i].as_ref().is_some_and(|e| !e.on_disk.is_empty()))
+                .filter(|&i| {
+                    self.options.keep_outputs
+                        || self.successors[i].iter().any(|&s| planned[s].is_none())
+                })
+                .collect();
+            if unread.is_empty() {
+                return planned;
+            }
+            let read: Vec<Option<Arc<CacheEntry>>> = unread
+                .par_iter()
+                .map(|&i| {
+                    let node = &self.graph.nodes[i];
+                    self.lookup(&node.id, node.op.spec(), &self.keys[i])
+                })
+                .collect();
+            for (i, entry) in unread.into_iter().zip(read) {
+                planned[i] = entry;
+            }
+        }
+    }
+
+    /// Node `i`'s cached result with its values left on disk where the
+    /// entry holds any: from memory, else its disk entry's meta. A corrupt
+    /// or stale entry is logged, removed and treated as missing.
+    fn lookup_meta(&self, i: usize) -> Option<Arc<CacheEntry>> {
+        let (node, key) = (&self.graph.nodes[i], &self.keys[i]);
+        if let Some(entry) = self.memory.get(key) {
+            return Some(entry);
+        }
+        let disk = self.options.cache.as_ref()?;
+        let entry = match disk.load_meta(key) {
+            Lookup::Hit(entry) => entry,
+            Lookup::Miss => return None,
+            Lookup::Corrupt(why) => {
+                tracing::warn!(node = %node.id, "corrupt cache entry, recomputing: {why}");
+                disk.remove(key);
+                return None;
+            }
+        };
+        if let Err(why) = entry.paths_intact() {
+            tracing::info!(node = %node.id, "stale cache entry, recomputing: {why}");
+            return None;
+        }
+        let spec = node.op.spec();
+        let held = entry
+            .outputs
+            .0
+            .keys()
+            .chain(&entry.on_disk)
+            .collect::<BTreeSet<_>>();
+        let declared = spec
+            .outputs
+            .iter()
+            .map(|p| &p.name)
+            .collect::<BTreeSet<_>>();
+        if held != declared {
+            tracing::warn!(
+                node = %node.id,
+                "cache entry does not fit the op (outputs {held:?}, declared {declared:?}), recomputing"
+            );
+            disk.remove(key);
+            return None;
+        }
+        Some(Arc::new(entry))
     }
 
     /// The cached result for `key`, from memory or disk; a corrupt or stale disk

@@ -281,6 +281,11 @@ impl<'a> Reader<'a> {
         Reader { bytes, pos: 0 }
     }
 
+    /// Whether every byte has been read.
+    pub(crate) fn is_empty(&self) -> bool {
+        self.pos == self.bytes.len()
+    }
+
     /// Decodes the value at the current position.
     pub(crate) fn value(&mut self) -> Result<Value, CodecError> {
         let (value, used) = decode_value(&self.bytes[self.pos..])?;

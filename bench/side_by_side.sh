@@ -8,7 +8,8 @@
 #   bench/side_by_side.sh [ROUNDS]        # default 3; writes under /tmp/fusegraph-side-by-side
 #
 # OLD_FUSEGRAPH=path/to/an/older/release/fusegraph adds the main job cold
-# (no cache) run by that build and this one, alternating; the older build
+# (no cache), fully cached and re-run after an ICP parameter, run by that
+# build and this one, alternating; the older build
 # runs OLD_GRAPH (default graphs/fusion.toml: give the older checkout's own,
 # whose ops it knows).
 set -euo pipefail
@@ -74,6 +75,19 @@ for round in $(seq "$rounds"); do
       status=0
       "$build" run "$graph" --no-cache --out "$work/main" >/dev/null 2>&1 || status=$?
       echo "main job cold, $which build ($build $graph): $((($(date +%s%N) - start) / 1000000)) ms, exit $status"
+      # Each build on its own cache (their formats differ), filled once:
+      # a fully cached re-run, then one after an ICP parameter changes (a
+      # new value each round, so ICP and what follows it run again).
+      cache=$work/cache-$which
+      [ -d "$cache" ] || "$build" run "$graph" --cache "$cache" --out "$work/main" >/dev/null 2>&1 || true
+      for rerun in cached "icp.trim_ratio=0.9$round"; do
+        set_args=()
+        [ "$rerun" = cached ] || set_args=(--set "$rerun")
+        start=$(date +%s%N)
+        status=0
+        "$build" run "$graph" --cache "$cache" --out "$work/main" "${set_args[@]}" >/dev/null 2>&1 || status=$?
+        echo "main job re-run ($rerun), $which build: $((($(date +%s%N) - start) / 1000000)) ms, exit $status"
+      done
     done
   fi
 done

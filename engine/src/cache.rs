@@ -107,7 +107,9 @@ impl MemoryCache {
 /// The outcome of looking a key up on disk.
 #[derive(Debug)]
 pub enum Lookup {
-    /// A whole, verified entry.
+    /// A verified entry: whole from [`DiskCache::load`], its meta alone
+    /// from [`DiskCache::load_meta`] (the values named in
+    /// [`CacheEntry::on_disk`]).
     Hit(CacheEntry),
     /// No entry.
     Miss,

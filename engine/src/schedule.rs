@@ -505,19 +505,7 @@ impl<'a> Executor<'a> {
             return Some(entry);
         }
         let disk = self.options.cache.as_ref()?;
-        let entry = match disk.load_meta(key) {
-            Lookup::Hit(entry) => entry,
-            Lookup::Miss => return None,
-            Lookup::Corrupt(why) => {
-                tracing::warn!(node = %node.id, "corrupt cache entry, recomputing: {why}");
-                disk.remove(key);
-                return None;
-            }
-        };
-        if let Err(why) = entry.paths_intact() {
-            tracing::info!(node = %node.id, "stale cache entry, recomputing: {why}");
-            return None;
-        }
+        let entry = usable(&node.id, disk, key, disk.load_meta(key))?;
         let spec = node.op.spec();
         let held = entry
             .outputs
@@ -548,19 +536,7 @@ impl<'a> Executor<'a> {
             return Some(entry);
         }
         let disk = self.options.cache.as_ref()?;
-        let entry = match disk.load(key) {
-            Lookup::Hit(entry) => entry,
-            Lookup::Miss => return None,
-            Lookup::Corrupt(why) => {
-                tracing::warn!(node = %id, "corrupt cache entry, recomputing: {why}");
-                disk.remove(key);
-                return None;
-            }
-        };
-        if let Err(why) = entry.paths_intact() {
-            tracing::info!(node = %id, "stale cache entry, recomputing: {why}");
-            return None;
-        }
+        let entry = usable(id, disk, key, disk.load(key))?;
         if let Err(why) = check_outputs(spec, &entry.outputs.0) {
             tracing::warn!(node = %id, "cache entry does not fit the op, recomputing: {why}");
             disk.remove(key);
@@ -570,6 +546,26 @@ impl<'a> Executor<'a> {
         self.memory.insert(*key, &entry);
         Some(entry)
     }
+}
+
+/// The entry a disk lookup of `key` (node `id`) found, if it is whole and
+/// its files are as recorded: a corrupt entry is logged and removed, a stale
+/// one logged, and either treated as missing.
+fn usable(id: &str, disk: &DiskCache, key: &NodeKey, found: Lookup) -> Option<CacheEntry> {
+    let entry = match found {
+        Lookup::Hit(entry) => entry,
+        Lookup::Miss => return None,
+        Lookup::Corrupt(why) => {
+            tracing::warn!(node = %id, "corrupt cache entry, recomputing: {why}");
+            disk.remove(key);
+            return None;
+        }
+    };
+    if let Err(why) = entry.paths_intact() {
+        tracing::info!(node = %id, "stale cache entry, recomputing: {why}");
+        return None;
+    }
+    Some(entry)
 }
 
 /// An op must produce every declared output with its declared type.

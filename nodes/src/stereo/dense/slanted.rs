@@ -448,9 +448,9 @@ impl ShapeFit {
             samples[k] = mean;
         }
         let first = self.fit_without(&samples, &valid)?;
-        let inliers: Vec<bool> = (0..samples.len())
-            .map(|k| valid[k] && (samples[k] - self.terms[k].dot(&first)).abs() <= OFF_SHAPE_PX)
-            .collect();
+        let inliers: [bool; (SHAPE_GRID * SHAPE_GRID) as usize] = std::array::from_fn(|k| {
+            valid[k] && (samples[k] - self.terms[k].dot(&first)).abs() <= OFF_SHAPE_PX
+        });
         let c = if inliers == valid {
             first
         } else {

@@ -254,9 +254,12 @@ fn slanted_window_sums_avx2(
                     ),
                 )
             };
-            let mut l = [0.0f32; 8];
-            l[..used_count].copy_from_slice(&left_row[first + chunk..first + chunk + used_count]);
-            let l = load8(&l);
+            let l = {
+                let l = &left_row[first + chunk..first + chunk + used_count];
+                // SAFETY: the mask reads the `used_count` floats `l` holds
+                // (its used lanes are its first ones) and no others.
+                unsafe { _mm256_maskload_ps(l.as_ptr(), _mm256_castps_si256(used)) }
+            };
             let g = _mm256_sub_ps(r1, r0);
             let r = _mm256_add_ps(r0, _mm256_mul_ps(g, t));
             // Unused lanes: r0 = r1 = l = 0, so each of their products is 0.

@@ -99,12 +99,10 @@ pub fn refine_slanted(
     p: &SlantedParams,
 ) -> (Vec<f32>, usize) {
     let (w, h) = (left.width, left.height);
-    let d_at = |x: isize, y: isize| -> Option<f32> {
-        if x < 0 || y < 0 || x >= w as isize || y >= h as isize {
-            return None;
-        }
-        let v = disparity[x as usize + y as usize * w];
-        (!v.is_nan()).then_some(v)
+    let map = MapView {
+        data: disparity,
+        width: w,
+        height: h,
     };
     // Noise per image, from the pair's own residual at these disparities
     // (blind to texture, unlike a one-image estimate; that one where too few
@@ -118,8 +116,8 @@ pub fn refine_slanted(
         .iter()
         .map(|&hw| match p.shape {
             WindowShape::Square => None,
-            WindowShape::Plane => Some(ShapeFit::new(hw as isize, false)),
-            WindowShape::Quadratic => Some(ShapeFit::new(hw as isize, true)),
+            WindowShape::Plane => Some(ShapeFit::new(hw as isize, false, w)),
+            WindowShape::Quadratic => Some(ShapeFit::new(hw as isize, true, w)),
         })
         .collect();
     // Residual per pixel no larger window need beat: the pair's noise, two
@@ -146,7 +144,7 @@ pub fn refine_slanted(
             let mut residual_before = 0.0f32;
             for (n, &hw) in halves.iter().enumerate() {
                 if let Some(fit) = &fits[n] {
-                    match fit.shape_at(&d_at, x, y) {
+                    match fit.shape_at(&map, x, y) {
                         Some(shape) => window.shape = shape,
                         // Too little map around to grow on (the smallest
                         // window is refined unwarped).
@@ -248,6 +246,8 @@ struct Window {
 struct ShapeFit {
     /// The samples' offsets from the window's centre, px.
     offsets: Vec<(isize, isize)>,
+    /// The same in the row-major map the fit was made for.
+    flat_offsets: Vec<isize>,
     /// Each sample's fitted terms (1, u, v, u^2, u v, v^2; u, v in
     /// half-windows; the bend's zero for a plane).
     terms: Vec<SVector<f64, 6>>,
@@ -267,7 +267,9 @@ struct ShapeFit {
 }
 
 impl ShapeFit {
-    fn new(half: isize, quadratic: bool) -> ShapeFit {
+    /// The fit over windows of half-size `half` px in a map `map_width` px
+    /// wide.
+    fn new(half: isize, quadratic: bool, map_width: usize) -> ShapeFit {
         let grid = |k: isize| {
             ((2 * half * k - half * (SHAPE_GRID - 1)) as f64 / (SHAPE_GRID - 1) as f64).round()
                 as isize
@@ -287,8 +289,13 @@ impl ShapeFit {
         let normal_all = terms
             .iter()
             .fold(SMatrix::<f64, 6, 6>::zeros(), |a, t| a + t * t.transpose());
+        let flat_offsets = offsets
+            .iter()
+            .map(|&(i, j)| i + j * map_width as isize)
+            .collect();
         let mut fit = ShapeFit {
             offsets,
+            flat_offsets,
             terms,
             solve: None,
             hat: Vec::new(),
@@ -419,17 +426,22 @@ impl ShapeFit {
 
     /// The map's shape around (x, y); `None` with under half the samples
     /// valid.
-    fn shape_at(
-        &self,
-        d_at: &impl Fn(isize, isize) -> Option<f32>,
-        x: isize,
-        y: isize,
-    ) -> Option<[f32; 5]> {
+    fn shape_at(&self, map: &MapView, x: isize, y: isize) -> Option<[f32; 5]> {
         let mut samples = [0.0f64; (SHAPE_GRID * SHAPE_GRID) as usize];
         let mut valid = [false; (SHAPE_GRID * SHAPE_GRID) as usize];
-        for (k, &(i, j)) in self.offsets.iter().enumerate() {
-            if let Some(d) = d_at(x + i, y + j) {
-                (samples[k], valid[k]) = (d as f64, true);
+        let reach = self.scale as isize;
+        if map.holds_square(x, y, reach) {
+            // The common case: every sample inside the map, read directly.
+            let centre = x as usize + y as usize * map.width;
+            for (k, &offset) in self.flat_offsets.iter().enumerate() {
+                let d = map.data[centre.wrapping_add_signed(offset)];
+                (samples[k], valid[k]) = (d as f64, !d.is_nan());
+            }
+        } else {
+            for (k, &(i, j)) in self.offsets.iter().enumerate() {
+                if let Some(d) = map.at(x + i, y + j) {
+                    (samples[k], valid[k]) = (d as f64, true);
+                }
             }
         }
         let count = valid.iter().filter(|v| **v).count();
@@ -439,13 +451,15 @@ impl ShapeFit {
         // A hole's sample is left out of the fit, and holds the valid ones'
         // mean meanwhile: any value gives the same fit (see
         // `fit_without`), a near one keeps the update well conditioned.
-        let mean = (0..samples.len())
-            .filter(|&k| valid[k])
-            .map(|k| samples[k])
-            .sum::<f64>()
-            / count as f64;
-        for k in (0..samples.len()).filter(|&k| !valid[k]) {
-            samples[k] = mean;
+        if count < samples.len() {
+            let mean = (0..samples.len())
+                .filter(|&k| valid[k])
+                .map(|k| samples[k])
+                .sum::<f64>()
+                / count as f64;
+            for k in (0..samples.len()).filter(|&k| !valid[k]) {
+                samples[k] = mean;
+            }
         }
         let first = self.fit_without(&samples, &valid)?;
         let inliers: [bool; (SHAPE_GRID * SHAPE_GRID) as usize] = std::array::from_fn(|k| {
@@ -504,6 +518,33 @@ fn solve_spd_in_place(m: &mut [f64], z: &mut [f64]) -> Option<()> {
         z[i] /= m[i * k + i];
     }
     Some(())
+}
+
+/// A disparity map as the shape fits read it: row-major, NaN = invalid.
+struct MapView<'a> {
+    data: &'a [f32],
+    width: usize,
+    height: usize,
+}
+
+impl MapView<'_> {
+    /// The valid disparity at (x, y), px.
+    fn at(&self, x: isize, y: isize) -> Option<f32> {
+        if x < 0 || y < 0 || x >= self.width as isize || y >= self.height as isize {
+            return None;
+        }
+        let v = self.data[x as usize + y as usize * self.width];
+        (!v.is_nan()).then_some(v)
+    }
+
+    /// Whether every pixel within `reach` of (x, y) along both axes lies in
+    /// the map.
+    fn holds_square(&self, x: isize, y: isize, reach: isize) -> bool {
+        x >= reach
+            && y >= reach
+            && x + reach < self.width as isize
+            && y + reach < self.height as isize
+    }
 }
 
 /// The rectified pair as the windows read it: grey levels as floats,
@@ -592,7 +633,7 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
         for quadratic in [false, true] {
             for half in [4, 6, 10] {
-                let fit = ShapeFit::new(half, quadratic);
+                let fit = ShapeFit::new(half, quadratic, 100);
                 let n = fit.terms.len();
                 for _ in 0..50 {
                     let samples: Vec<f64> = (0..n).map(|_| rng.random_range(10.0..12.0)).collect();

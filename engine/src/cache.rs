@@ -412,13 +412,17 @@ fn decode_entry(bytes: &[u8], key: &NodeKey) -> Result<CacheEntry, String> {
     // The values follow one another and fill the part: no byte unchecked.
     let mut next = 0;
     for s in stored {
-        if s.offset != next || s.offset + s.len > values.len() {
+        let end = s
+            .offset
+            .checked_add(s.len)
+            .filter(|&end| end <= values.len());
+        let Some(end) = end.filter(|_| s.offset == next) else {
             return Err(format!(
                 "output `{}`: its value lies outside the entry",
                 s.port
             ));
-        }
-        next = s.offset + s.len;
+        };
+        next = end;
         let value = &values[s.offset..next];
         if blake3::hash(value).as_bytes() != &s.hash {
             return Err(format!("output `{}`: checksum mismatch", s.port));
@@ -670,6 +674,41 @@ mod tests {
             b[i] ^= 0x10;
             assert!(decode_meta(&b, &key).is_err(), "flip at {i}");
         }
+    }
+
+    #[test]
+    fn a_value_placed_past_the_entry_is_refused_not_read() {
+        // A meta whose checksum holds (written so) but whose value's place
+        // overflows: an error, not a panic.
+        let key = NodeKey([9; 32]);
+        let mut values = Vec::new();
+        encode_value(&Value::from(3.5), &mut values);
+        let mut meta = key.0.to_vec();
+        let mut w = Writer(&mut meta);
+        w.str("test.op");
+        w.usize(0);
+        w.usize(2);
+        w.str("first");
+        w.u8(1);
+        w.usize(0);
+        w.usize(values.len());
+        w.u8s(blake3::hash(&values).as_bytes());
+        w.str("second");
+        w.u8(1);
+        w.usize(values.len());
+        w.usize(usize::MAX);
+        w.u8s(&[0; 32]);
+        w.usize(0);
+        w.usize(0);
+        let mut bytes = MAGIC.to_vec();
+        bytes.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+        bytes.extend_from_slice(&(meta.len() as u64).to_le_bytes());
+        bytes.extend_from_slice(&(values.len() as u64).to_le_bytes());
+        bytes.extend_from_slice(blake3::hash(&meta).as_bytes());
+        bytes.extend_from_slice(&meta);
+        bytes.extend_from_slice(&values);
+        let why = decode_entry(&bytes, &key).unwrap_err();
+        assert!(why.contains("`second`: its value lies outside"), "{why}");
     }
 
     #[test]

@@ -386,14 +386,19 @@ fn encode_entry(key: &NodeKey, entry: &CacheEntry) -> Vec<u8> {
     for n in entry.notes.iter() {
         w.str(n);
     }
+    entry_bytes(&meta, &values)
+}
+
+/// An entry file's bytes: the header over `meta` and `values`, then both.
+fn entry_bytes(meta: &[u8], values: &[u8]) -> Vec<u8> {
     let mut bytes = Vec::with_capacity(HEADER_LEN + meta.len() + values.len());
     bytes.extend_from_slice(MAGIC);
     bytes.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
     bytes.extend_from_slice(&(meta.len() as u64).to_le_bytes());
     bytes.extend_from_slice(&(values.len() as u64).to_le_bytes());
-    bytes.extend_from_slice(blake3::hash(&meta).as_bytes());
-    bytes.extend_from_slice(&meta);
-    bytes.extend_from_slice(&values);
+    bytes.extend_from_slice(blake3::hash(meta).as_bytes());
+    bytes.extend_from_slice(meta);
+    bytes.extend_from_slice(values);
     bytes
 }
 
@@ -700,13 +705,7 @@ mod tests {
         w.u8s(&[0; 32]);
         w.usize(0);
         w.usize(0);
-        let mut bytes = MAGIC.to_vec();
-        bytes.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
-        bytes.extend_from_slice(&(meta.len() as u64).to_le_bytes());
-        bytes.extend_from_slice(&(values.len() as u64).to_le_bytes());
-        bytes.extend_from_slice(blake3::hash(&meta).as_bytes());
-        bytes.extend_from_slice(&meta);
-        bytes.extend_from_slice(&values);
+        let bytes = entry_bytes(&meta, &values);
         let why = decode_entry(&bytes, &key).unwrap_err();
         assert!(why.contains("`second`: its value lies outside"), "{why}");
     }

@@ -159,22 +159,6 @@ enum CacheCommand {
     },
 }
 
-/// `n` bytes for people: `1.3 GiB`.
-fn human_bytes(n: u64) -> String {
-    let units = ["B", "KiB", "MiB", "GiB", "TiB"];
-    let mut x = n as f64;
-    let mut u = 0;
-    while x >= 1024.0 && u + 1 < units.len() {
-        x /= 1024.0;
-        u += 1;
-    }
-    if u == 0 {
-        format!("{n} B")
-    } else {
-        format!("{x:.1} {}", units[u])
-    }
-}
-
 fn cache_command(what: CacheCommand) -> anyhow::Result<u8> {
     use fusegraph_engine::cache_admin as admin;
     let dir_or_default =
@@ -196,7 +180,7 @@ fn cache_command(what: CacheCommand) -> anyhow::Result<u8> {
             println!(
                 "{}: {} in all (as du -sb counts), {} entries",
                 dir.display(),
-                human_bytes(s.total_bytes),
+                admin::human_bytes(s.total_bytes),
                 s.entries.len()
             );
             if let (Some(old), Some(new)) = (s.entries.first(), s.entries.last()) {
@@ -208,11 +192,19 @@ fn cache_command(what: CacheCommand) -> anyhow::Result<u8> {
                     new.op
                 );
             }
+            for (folder, bytes) in &s.older_formats {
+                println!(
+                    "{} {}: an older format this build does not read and gc leaves; remove the \
+                     folder once no older fusegraph uses this cache",
+                    folder.display(),
+                    admin::human_bytes(*bytes)
+                );
+            }
             let mut ops: Vec<_> = s.by_op.iter().collect();
             ops.sort_by_key(|op| std::cmp::Reverse(op.1.1));
             println!("{:<32} {:>8} {:>12}", "op", "entries", "size");
             for (op, (n, bytes)) in ops {
-                println!("{op:<32} {n:>8} {:>12}", human_bytes(*bytes));
+                println!("{op:<32} {n:>8} {:>12}", admin::human_bytes(*bytes));
             }
             Ok(0)
         }
@@ -238,7 +230,7 @@ fn cache_command(what: CacheCommand) -> anyhow::Result<u8> {
                 "{} {} entries ({}); left {} being computed and {} used within {}",
                 if dry_run { "would remove" } else { "removed" },
                 r.removed.len(),
-                human_bytes(r.removed_bytes),
+                admin::human_bytes(r.removed_bytes),
                 r.busy,
                 r.recent,
                 humantime(keep_recent)

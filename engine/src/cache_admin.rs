@@ -40,6 +40,8 @@ pub struct Stats {
     pub entries: Vec<EntryInfo>,
     /// Entries and bytes by op.
     pub by_op: BTreeMap<String, (usize, u64)>,
+    /// Folders of older formats (see [`older_formats`]), in `total_bytes`.
+    pub older_formats: Vec<(PathBuf, u64)>,
 }
 
 /// The versioned folder of the cache at `dir` (`dir/vN`); an error naming
@@ -47,16 +49,81 @@ pub struct Stats {
 fn versioned(dir: &Path) -> io::Result<PathBuf> {
     let v = dir.join(format!("v{FORMAT_VERSION}"));
     if !v.is_dir() {
+        let older = older_formats(dir);
+        let why = if older.is_empty() {
+            "the default cache is .fusegraph/cache beside a graph \
+             (graphs/.fusegraph/cache for the shipped ones)"
+                .to_string()
+        } else {
+            format!(
+                "only {}, which this build does not read",
+                describe_older(&older)
+            )
+        };
         return Err(io::Error::new(
             io::ErrorKind::NotFound,
             format!(
-                "{}: no fusegraph cache (format v{FORMAT_VERSION}) here; the default cache is \
-                 .fusegraph/cache beside a graph (graphs/.fusegraph/cache for the shipped ones)",
+                "{}: no fusegraph cache (format v{FORMAT_VERSION}) here; {why}",
                 dir.display()
             ),
         ));
     }
     Ok(v)
+}
+
+/// The folders of older entry formats in the cache at `dir` (`vN`, N below
+/// [`FORMAT_VERSION`]) and their apparent bytes, oldest first: this build
+/// never reads them, and `gc` leaves them (an older build may still use
+/// them); removing one once no older build does frees its space.
+pub fn older_formats(dir: &Path) -> Vec<(PathBuf, u64)> {
+    let Ok(children) = std::fs::read_dir(dir) else {
+        return Vec::new();
+    };
+    let mut older: Vec<(u32, PathBuf)> = children
+        .flatten()
+        .filter(|e| e.path().is_dir())
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let version: u32 = name.strip_prefix('v')?.parse().ok()?;
+            (version < FORMAT_VERSION).then(|| (version, e.path()))
+        })
+        .collect();
+    older.sort();
+    older
+        .into_iter()
+        .map(|(_, path)| {
+            let bytes = apparent_bytes(&path);
+            (path, bytes)
+        })
+        .collect()
+}
+
+/// `n` bytes for people: `1.3 GiB`.
+pub fn human_bytes(n: u64) -> String {
+    let units = ["B", "KiB", "MiB", "GiB", "TiB"];
+    let mut x = n as f64;
+    let mut u = 0;
+    while x >= 1024.0 && u + 1 < units.len() {
+        x /= 1024.0;
+        u += 1;
+    }
+    if u == 0 {
+        format!("{n} B")
+    } else {
+        format!("{x:.1} {}", units[u])
+    }
+}
+
+/// "older formats v4 (21.5 GiB)" for [`older_formats`]' folders.
+fn describe_older(older: &[(PathBuf, u64)]) -> String {
+    let named: Vec<String> = older
+        .iter()
+        .map(|(path, bytes)| {
+            let name = path.file_name().map(|n| n.to_string_lossy().into_owned());
+            format!("{} ({})", name.unwrap_or_default(), human_bytes(*bytes))
+        })
+        .collect();
+    format!("older formats {}", named.join(", "))
 }
 
 /// Apparent bytes of `path` and everything under it (folders included).
@@ -134,6 +201,7 @@ pub fn stats(dir: &Path) -> io::Result<Stats> {
         total_bytes: apparent_bytes(dir),
         entries,
         by_op,
+        older_formats: older_formats(dir),
     })
 }
 
@@ -403,6 +471,34 @@ pub fn parse_size(text: &str) -> Result<u64, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn older_formats_are_named_with_their_size_and_left_alone() {
+        let dir = tempfile::tempdir().unwrap();
+        let old = dir.path().join("v1");
+        std::fs::create_dir_all(old.join("ab")).unwrap();
+        std::fs::write(old.join("ab").join("x.entry"), [0u8; 1000]).unwrap();
+        std::fs::create_dir_all(dir.path().join("notes")).unwrap();
+        let why = stats(dir.path()).unwrap_err().to_string();
+        assert!(why.contains("no fusegraph cache (format v"), "{why}");
+        assert!(why.contains("only older formats v1 ("), "{why}");
+        std::fs::create_dir_all(dir.path().join(format!("v{FORMAT_VERSION}"))).unwrap();
+        let s = stats(dir.path()).unwrap();
+        assert_eq!(s.older_formats.len(), 1);
+        assert_eq!(s.older_formats[0].0, old);
+        assert!(s.older_formats[0].1 >= 1000);
+        let report = gc(
+            dir.path(),
+            GcLimits {
+                max_bytes: Some(0),
+                ..Default::default()
+            },
+            SystemTime::now(),
+        )
+        .unwrap();
+        assert!(report.removed.is_empty());
+        assert!(old.join("ab").join("x.entry").exists());
+    }
 
     #[test]
     fn ages_and_sizes_parse_with_their_units() {

@@ -1,12 +1,11 @@
 //! The slanted refinement's inner loop: the sums over one window of the
 //! left image and the right image sampled along the window's warp. Two
-//! builds of one computation: a portable kernel (plain Rust, compiled for
-//! the baseline and again with AVX2 by [`kernels!`]) and, on AVX2, the same
-//! arithmetic written with intrinsics, whose loads of the right image are
-//! gathers. Both give the same bits: the same f32 interpolation, the same
+//! builds of one computation: a portable kernel (plain Rust, which the
+//! compiler vectorises for the baseline) and, on AVX2, the same arithmetic
+//! written with intrinsics, whose loads of the right image are gathers. Both give the same bits: the same f32 interpolation, the same
 //! f64 products, each accumulated in the same lane in the same order.
 
-use super::simd::{Isa, kernels};
+use super::simd::Isa;
 
 impl Isa {
     /// Sums over the window of half-size `half` around (`x`, `y`) warped by
@@ -31,7 +30,7 @@ impl Isa {
             // CPU reported AVX2.
             return unsafe { slanted_window_sums_avx2(left, right, w, x, y, half, d, shape) };
         }
-        self.slanted_window_sums_portable(left, right, w, x, y, half, d, shape)
+        slanted_window_sums_portable(left, right, w, x, y, half, d, shape)
     }
 }
 
@@ -56,99 +55,98 @@ const COLUMN: [f32; ROW_CAPACITY] = {
     c
 };
 
-kernels! {
-    /// One pass of sums over the window of half-size `half` around (`x`,
-    /// `y`) warped by `shape` at disparity `d` (`left` and `right` row-major
-    /// grey levels, `w` px wide): sum(l - r), sum((l - r)^2), sum(g),
-    /// sum((l - r) g), sum(g^2), with r the right image linearly
-    /// interpolated at the warped column and g its slope there. No buffer
-    /// per window (this runs for every pixel and iteration): with
-    /// e = (l - r) - mean(l - r) and gz = g - mean(g), the caller takes
-    /// sum(e gz) = sum((l - r) g) - n mean(l - r) mean(g) and
-    /// sum(gz^2) = sum(g^2) - n mean(g)^2 from these. `None` where a warped
-    /// column leaves the right image's interior. Each row is taken in three
-    /// passes (columns, the samples they read, the sums) so the first and
-    /// last vectorise: the loads between them are a gather.
-    fn slanted_window_sums_portable(
-        left: &[f32],
-        right: &[f32],
-        w: usize,
-        x: isize,
-        y: isize,
-        half: isize,
-        d: f32,
-        shape: [f32; 5],
-    ) -> Option<[f64; 5]> {
-        let side = (2 * half + 1) as usize;
-        if side > ROW_CAPACITY {
+/// One pass of sums over the window of half-size `half` around (`x`,
+/// `y`) warped by `shape` at disparity `d` (`left` and `right` row-major
+/// grey levels, `w` px wide): sum(l - r), sum((l - r)^2), sum(g),
+/// sum((l - r) g), sum(g^2), with r the right image linearly
+/// interpolated at the warped column and g its slope there. No buffer
+/// per window (this runs for every pixel and iteration): with
+/// e = (l - r) - mean(l - r) and gz = g - mean(g), the caller takes
+/// sum(e gz) = sum((l - r) g) - n mean(l - r) mean(g) and
+/// sum(gz^2) = sum(g^2) - n mean(g)^2 from these. `None` where a warped
+/// column leaves the right image's interior. Each row is taken in three
+/// passes (columns, the samples they read, the sums) so the first and
+/// last vectorise: the loads between them are a gather.
+#[allow(clippy::too_many_arguments)]
+fn slanted_window_sums_portable(
+    left: &[f32],
+    right: &[f32],
+    w: usize,
+    x: isize,
+    y: isize,
+    half: isize,
+    d: f32,
+    shape: [f32; 5],
+) -> Option<[f64; 5]> {
+    let side = (2 * half + 1) as usize;
+    if side > ROW_CAPACITY {
+        return None;
+    }
+    let [gx, gy, gxx, gxy, gyy] = shape;
+    let (mut x0, mut t) = ([0u32; ROW_CAPACITY], [0.0f32; ROW_CAPACITY]);
+    // Lanes past `side` are never written: zeros, they add nothing.
+    let (mut l, mut r0, mut r1) = (
+        [0.0f32; ROW_CAPACITY],
+        [0.0f32; ROW_CAPACITY],
+        [0.0f32; ROW_CAPACITY],
+    );
+    let mut sums = [[0.0f64; LANES]; 5];
+    let (lowest, highest) = (1.0f32, (w - 2) as f32);
+    let (first, half_f, side_f) = ((x - half) as usize, half as f32, side as f32);
+    let first_f = first as f32;
+    for j in -half..=half {
+        let yy = (y + j) as usize;
+        let row = yy * w..(yy + 1) * w;
+        let (left_row, right_row) = (&left[row.clone()], &right[row]);
+        let jf = j as f32;
+        // The warp along this row: d + (gy j + gyy j^2) + (gx + gxy j) i + gxx i^2.
+        let (base, linear) = (d + gy * jf + gyy * jf * jf, gx + gxy * jf);
+        // Whole registers, past `side` too (those lanes are not read):
+        // the warped columns, their floors and fractions.
+        let mut outside = 0u32;
+        for k in 0..ROW_CAPACITY {
+            let (col, i) = (first_f + COLUMN[k], COLUMN[k] - half_f);
+            let at = col - (base + linear * i + gxx * i * i);
+            let used = COLUMN[k] < side_f;
+            outside |= (used & !(at >= lowest && at < highest)) as u32;
+            let floor = at.floor();
+            // The floor as an integer without a saturating conversion
+            // per lane (which does not vectorise): below 2^23 its bits
+            // past 2^23 are the integer. Lanes outside are not read.
+            x0[k] = (floor + TWO_POW_23)
+                .to_bits()
+                .wrapping_sub(TWO_POW_23.to_bits());
+            t[k] = at - floor;
+        }
+        if outside != 0 {
             return None;
         }
-        let [gx, gy, gxx, gxy, gyy] = shape;
-        let (mut x0, mut t) = ([0u32; ROW_CAPACITY], [0.0f32; ROW_CAPACITY]);
-        // Lanes past `side` are never written: zeros, they add nothing.
-        let (mut l, mut r0, mut r1) = (
-            [0.0f32; ROW_CAPACITY],
-            [0.0f32; ROW_CAPACITY],
-            [0.0f32; ROW_CAPACITY],
-        );
-        let mut sums = [[0.0f64; LANES]; 5];
-        let (lowest, highest) = (1.0f32, (w - 2) as f32);
-        let (first, half_f, side_f) = ((x - half) as usize, half as f32, side as f32);
-        let first_f = first as f32;
-        for j in -half..=half {
-            let yy = (y + j) as usize;
-            let row = yy * w..(yy + 1) * w;
-            let (left_row, right_row) = (&left[row.clone()], &right[row]);
-            let jf = j as f32;
-            // The warp along this row: d + (gy j + gyy j^2) + (gx + gxy j) i + gxx i^2.
-            let (base, linear) = (d + gy * jf + gyy * jf * jf, gx + gxy * jf);
-            // Whole registers, past `side` too (those lanes are not read):
-            // the warped columns, their floors and fractions.
-            let mut outside = 0u32;
-            for k in 0..ROW_CAPACITY {
-                let (col, i) = (first_f + COLUMN[k], COLUMN[k] - half_f);
-                let at = col - (base + linear * i + gxx * i * i);
-                let used = COLUMN[k] < side_f;
-                outside |= (used & !(at >= lowest && at < highest)) as u32;
-                let floor = at.floor();
-                // The floor as an integer without a saturating conversion
-                // per lane (which does not vectorise): below 2^23 its bits
-                // past 2^23 are the integer. Lanes outside are not read.
-                x0[k] = (floor + TWO_POW_23)
-                    .to_bits()
-                    .wrapping_sub(TWO_POW_23.to_bits());
-                t[k] = at - floor;
-            }
-            if outside != 0 {
-                return None;
-            }
-            for k in 0..side {
-                let &[a, b] = right_row[x0[k] as usize..].first_chunk()?;
-                (r0[k], r1[k]) = (a, b);
-            }
-            l[..side].copy_from_slice(&left_row[first..first + side]);
-            for lane in (0..side).step_by(LANES) {
-                for k in lane..lane + LANES {
-                    let r = (r0[k] + (r1[k] - r0[k]) * t[k]) as f64;
-                    // The derivative of what is matched, the interpolated
-                    // row: its slope between the samples around. (An
-                    // interpolated central difference is not the cost's
-                    // gradient, so its fixed point is not the cost's
-                    // minimum: on the lab phantom at 6 DN it left the
-                    // disparities 0.01 px lower and their spread 10 % wider.)
-                    let g = (r1[k] - r0[k]) as f64;
-                    let lr = l[k] as f64 - r;
-                    let m = k - lane;
-                    sums[0][m] += lr;
-                    sums[1][m] += lr * lr;
-                    sums[2][m] += g;
-                    sums[3][m] += lr * g;
-                    sums[4][m] += g * g;
-                }
+        for k in 0..side {
+            let &[a, b] = right_row[x0[k] as usize..].first_chunk()?;
+            (r0[k], r1[k]) = (a, b);
+        }
+        l[..side].copy_from_slice(&left_row[first..first + side]);
+        for lane in (0..side).step_by(LANES) {
+            for k in lane..lane + LANES {
+                let r = (r0[k] + (r1[k] - r0[k]) * t[k]) as f64;
+                // The derivative of what is matched, the interpolated
+                // row: its slope between the samples around. (An
+                // interpolated central difference is not the cost's
+                // gradient, so its fixed point is not the cost's
+                // minimum: on the lab phantom at 6 DN it left the
+                // disparities 0.01 px lower and their spread 10 % wider.)
+                let g = (r1[k] - r0[k]) as f64;
+                let lr = l[k] as f64 - r;
+                let m = k - lane;
+                sums[0][m] += lr;
+                sums[1][m] += lr * lr;
+                sums[2][m] += g;
+                sums[3][m] += lr * g;
+                sums[4][m] += g * g;
             }
         }
-        Some(sums.map(|s| s.iter().sum()))
     }
+    Some(sums.map(|s| s.iter().sum()))
 }
 
 /// `slanted_window_sums_portable` with AVX2 intrinsics: eight columns of a
@@ -371,8 +369,7 @@ mod tests {
                 }
                 // Every build gives the portable kernel's bits (the
                 // refinement's figures do not depend on the machine).
-                let portable = Isa::Scalar
-                    .slanted_window_sums_portable(&left, &right, w, x, y, half, d, shape);
+                let portable = slanted_window_sums_portable(&left, &right, w, x, y, half, d, shape);
                 let bits = |s: Option<[f64; 5]>| s.map(|s| s.map(f64::to_bits));
                 assert_eq!(bits(kernel), bits(portable), "{isa:?}, half {half}");
             }

@@ -49,6 +49,30 @@ fn scalar(outcome: &fusegraph_engine::schedule::RunOutcome, node: usize, port: &
     }
 }
 
+/// A run of `graph` with `sets`, a disk cache or none, and `keep_outputs`
+/// as given, sharing `memory` with other runs.
+fn run_with(
+    reg: &fusegraph_engine::Registry,
+    graph: &std::path::Path,
+    sets: &[&str],
+    cache: Option<&std::path::Path>,
+    out: &std::path::Path,
+    memory: &MemoryCache,
+    keep_outputs: bool,
+) -> RunOutcome {
+    let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+    let graph = load_graph(graph, &sets, reg).unwrap();
+    let options = RunOptions {
+        out_dir: out.to_path_buf(),
+        cache: cache.map(|c| DiskCache::open(c).unwrap()),
+        jobs: 2,
+        progress: false,
+        provenance: Default::default(),
+        keep_outputs,
+    };
+    run(&graph, &options, memory).unwrap()
+}
+
 /// The diamond run with `keep_outputs` as given, without a disk cache,
 /// sharing `memory` between runs.
 fn run_in_memory(
@@ -58,16 +82,7 @@ fn run_in_memory(
     memory: &MemoryCache,
     keep_outputs: bool,
 ) -> RunOutcome {
-    let graph = load_graph(graph, &[], reg).unwrap();
-    let options = RunOptions {
-        out_dir: out.to_path_buf(),
-        cache: None,
-        jobs: 2,
-        progress: false,
-        provenance: Default::default(),
-        keep_outputs,
-    };
-    run(&graph, &options, memory).unwrap()
+    run_with(reg, graph, &[], None, out, memory, keep_outputs)
 }
 
 #[test]
@@ -198,17 +213,15 @@ fn run_released(
     cache: &std::path::Path,
     out: &std::path::Path,
 ) -> RunOutcome {
-    let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
-    let graph = load_graph(graph, &sets, reg).unwrap();
-    let options = RunOptions {
-        out_dir: out.to_path_buf(),
-        cache: Some(DiskCache::open(cache).unwrap()),
-        jobs: 2,
-        progress: false,
-        provenance: Default::default(),
-        keep_outputs: false,
-    };
-    run(&graph, &options, &MemoryCache::new()).unwrap()
+    run_with(
+        reg,
+        graph,
+        sets,
+        Some(cache),
+        out,
+        &MemoryCache::new(),
+        false,
+    )
 }
 
 #[test]

@@ -9,7 +9,7 @@ use super::motion::{MotionField, dome_extent};
 use super::moved_shape::MovedShape;
 use super::mri::{MriParams, covering_grid, signal_of, synthesize};
 use super::props::{Prop, distractors, first_prop, occluder};
-use super::render::{RenderParams, Renderer};
+use super::render::{RenderParams, Renderer, TextureSamples};
 use super::rig::{Rig, board_poses, view_poses};
 use super::scenes::{Chessboard, ChessboardScene, MARKER_GREEN, PhantomScene};
 use super::sensor::{image_extension, write_image};
@@ -167,14 +167,15 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
         square_mm: 25.0,
         margin_mm: 20.0,
     };
-    // Samples per axis: calibration edges, view edges, view texture.
-    let (calib_ss, view_ss, view_texture_ss) = match config.size {
-        PhantomSize::Small => (2, 1, 1),
-        PhantomSize::Full => (4, 3, 2),
+    // Samples per axis at calibration edges and view edges, and how view
+    // texture is sampled (the board has no texture to tell apart).
+    let (calib_ss, view_ss, view_texture) = match config.size {
+        PhantomSize::Small => (2, 1, TextureSamples::Grid(1)),
+        PhantomSize::Full => (4, 3, TextureSamples::Quincunx),
     };
-    let render_params = |(supersample, smooth_supersample), seed: u64, camera| RenderParams {
+    let render_params = |(supersample, texture), seed: u64, camera| RenderParams {
         supersample,
-        smooth_supersample,
+        texture,
         blur_sigma_px: 0.5,
         lens: c.lens(camera),
         sensor: c.sensor(seed),
@@ -206,7 +207,7 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
                     .enumerate()
             {
                 let seed = config.seed.wrapping_mul(1000) + 2 * index as u64 + side as u64;
-                let params = render_params((calib_ss, calib_ss), seed, camera);
+                let params = render_params((calib_ss, TextureSamples::Grid(calib_ss)), seed, camera);
                 let rgb = renderers[side].render(camera_pose, &scene, &params);
                 write(&dir.join(&names[side]), &rgb, camera)?;
             }
@@ -249,7 +250,7 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
                     .enumerate()
             {
                 let seed = config.seed.wrapping_mul(7000) + 2 * index as u64 + side as u64;
-                let params = render_params((view_ss, view_texture_ss), seed, camera);
+                let params = render_params((view_ss, view_texture), seed, camera);
                 let rgb = renderers[side].render(pose, &scene, &params);
                 write(&dir.join(&names[side]), &rgb, camera)?;
             }

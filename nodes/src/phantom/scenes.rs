@@ -314,7 +314,7 @@ mod tests {
     use crate::camera::look_at;
     use crate::phantom::lighting::{Lamp, LampSource};
     use crate::phantom::motion::{MotionField, MotionKind};
-    use crate::phantom::render::{RenderParams, Renderer};
+    use crate::phantom::render::{RenderParams, Renderer, TextureSamples};
     use crate::phantom::sensor::SensorParams;
     use crate::phantom::{PhantomShape, ShapeParams};
     use rand::SeedableRng;
@@ -371,7 +371,7 @@ mod tests {
         sensor.vignetting = 0.0;
         let params = RenderParams {
             supersample: 5,
-            smooth_supersample: 5,
+            texture: TextureSamples::Grid(5),
             blur_sigma_px: 0.0,
             lens: None,
             sensor,

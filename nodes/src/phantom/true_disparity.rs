@@ -260,7 +260,7 @@ mod tests {
     use crate::calib::{rectify, remap};
     use crate::phantom::lighting::Lighting;
     use crate::phantom::motion::MotionField;
-    use crate::phantom::render::{RenderParams, Renderer};
+    use crate::phantom::render::{RenderParams, Renderer, TextureSamples};
     use crate::phantom::rig::{Rig, view_poses};
     use crate::phantom::scenes::PhantomScene;
     use crate::phantom::sensor::SensorParams;
@@ -324,7 +324,7 @@ mod tests {
             sensor.vignetting = 0.0;
             let params = RenderParams {
                 supersample: 1,
-                smooth_supersample: 1,
+                texture: TextureSamples::Grid(1),
                 blur_sigma_px: 0.0,
                 lens: None,
                 sensor,

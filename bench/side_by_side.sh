@@ -80,9 +80,15 @@ for round in $(seq "$rounds"); do
       # new value each round, so ICP and what follows it run again).
       cache=$work/cache-$which
       [ -d "$cache" ] || "$build" run "$graph" --cache "$cache" --out "$work/main" >/dev/null 2>&1 || true
-      for rerun in cached "icp.trim_ratio=0.9$round"; do
+      # This build also re-runs with the deformable stage off (a9d37ce's
+      # graph had none): ICP and what follows it, like for like.
+      reruns=(cached "icp.trim_ratio=0.9$round")
+      [ "$which" = old ] || reruns+=("icp.trim_ratio=0.8$round deform.mode=rigid")
+      for rerun in "${reruns[@]}"; do
         set_args=()
-        [ "$rerun" = cached ] || set_args=(--set "$rerun")
+        if [ "$rerun" != cached ]; then
+          for setting in $rerun; do set_args+=(--set "$setting"); done
+        fi
         start=$(date +%s%N)
         status=0
         "$build" run "$graph" --cache "$cache" --out "$work/main" "${set_args[@]}" >/dev/null 2>&1 || status=$?

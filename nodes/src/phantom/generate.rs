@@ -207,7 +207,8 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
                     .enumerate()
             {
                 let seed = config.seed.wrapping_mul(1000) + 2 * index as u64 + side as u64;
-                let params = render_params((calib_ss, TextureSamples::Grid(calib_ss)), seed, camera);
+                let params =
+                    render_params((calib_ss, TextureSamples::Grid(calib_ss)), seed, camera);
                 let rgb = renderers[side].render(camera_pose, &scene, &params);
                 write(&dir.join(&names[side]), &rgb, camera)?;
             }

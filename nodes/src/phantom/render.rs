@@ -313,10 +313,15 @@ fn render_with(
                     PixelSamples::Texture(surface, span) => {
                         if p.texture == TextureSamples::Quincunx {
                             let corner = |cx: usize, cy: usize| corners[cx + cy * (w + 1)];
-                            let (a, b, c, d) =
-                                (corner(x, y), corner(x + 1, y), corner(x, y + 1), corner(x + 1, y + 1));
+                            let (a, b, c, d) = (
+                                corner(x, y),
+                                corner(x + 1, y),
+                                corner(x, y + 1),
+                                corner(x + 1, y + 1),
+                            );
                             *px = std::array::from_fn(|ch| {
-                                (2.0 / 3.0) * px[ch] + (1.0 / 12.0) * (a[ch] + b[ch] + c[ch] + d[ch])
+                                (2.0 / 3.0) * px[ch]
+                                    + (1.0 / 12.0) * (a[ch] + b[ch] + c[ch] + d[ch])
                             });
                             continue;
                         }
@@ -537,8 +542,16 @@ mod tests {
         // the centre alone misses that by up to 0.04 (10 grey levels),
         // the quincunx (2/3 + cos(π/4)/3 = 0.902) by under a level.
         let worst = |a: &[i32], b: &[i32]| a.iter().zip(b).map(|(a, b)| (a - b).abs()).max();
-        assert!(worst(&centre, &fine) >= Some(6), "{:?}", worst(&centre, &fine));
-        assert!(worst(&quincunx, &fine) <= Some(1), "{:?}", worst(&quincunx, &fine));
+        assert!(
+            worst(&centre, &fine) >= Some(6),
+            "{:?}",
+            worst(&centre, &fine)
+        );
+        assert!(
+            worst(&quincunx, &fine) <= Some(1),
+            "{:?}",
+            worst(&quincunx, &fine)
+        );
         assert!(worst(&grid, &fine) <= Some(1), "{:?}", worst(&grid, &fine));
     }
 

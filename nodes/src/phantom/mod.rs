@@ -9,6 +9,7 @@ mod camera_surface;
 mod conditions;
 mod defocus;
 mod dicom_series;
+mod footprint;
 mod generate;
 mod lighting;
 mod motion;

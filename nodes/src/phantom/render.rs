@@ -49,6 +49,20 @@ pub trait Scene: Sync {
         }
     }
 
+    /// The mean radiance over a pixel's footprint where the scene can
+    /// integrate it exactly (a planar pattern): `corners` are the unit rays
+    /// through the pixel's four corners, in order around it, and `centre`
+    /// the ray through its centre (world frame). `None`, the default, has
+    /// the pixel supersampled instead.
+    fn pixel_mean(
+        &self,
+        _origin: &Point3<f64>,
+        _corners: &[Vector3<f64>; 4],
+        _centre: &Vector3<f64>,
+    ) -> Option<[f32; 3]> {
+        None
+    }
+
     /// What the ray sees, told that the rays around it (within a pixel of
     /// it, on every side) all met smooth surface `surface` at distances
     /// within `span_mm`: a scene may search only near that span. The
@@ -309,7 +323,23 @@ fn render_with(
             for (x, px) in row.iter_mut().enumerate() {
                 let (grid, near) = match samples[x + y * w] {
                     PixelSamples::Centre => continue,
-                    PixelSamples::Edge => (&offsets, None),
+                    PixelSamples::Edge => {
+                        let corner = |dx: f64, dy: f64| {
+                            rotation * rays.direction(x as f64 + dx, y as f64 + dy)
+                        };
+                        let corners = [
+                            corner(-0.5, -0.5),
+                            corner(0.5, -0.5),
+                            corner(0.5, 0.5),
+                            corner(-0.5, 0.5),
+                        ];
+                        let centre = rotation * centres[x + y * w];
+                        if let Some(mean) = scene.pixel_mean(&origin, &corners, &centre) {
+                            *px = mean;
+                            continue;
+                        }
+                        (&offsets, None)
+                    }
                     PixelSamples::Texture(surface, span) => {
                         if p.texture == TextureSamples::Quincunx {
                             let corner = |cx: usize, cy: usize| corners[cx + cy * (w + 1)];

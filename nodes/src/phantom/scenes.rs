@@ -2,6 +2,7 @@
 //! cluttered wall (calibration), and the phantom on a cloth-covered table
 //! under its [`Lighting`] (phantom views).
 
+use super::footprint::{Polygon, pieces};
 use super::lighting::{Lighting, SurfacePoint};
 use super::moved_shape::MovedShape;
 use super::props::{Prop, first_prop};
@@ -35,14 +36,21 @@ impl Chessboard {
             .collect()
     }
 
+    /// The board's outer edge in board coordinates: [x0, y0, x1, y1], mm.
+    fn extent(&self) -> [f64; 4] {
+        let s = self.square_mm;
+        [
+            -s - self.margin_mm,
+            -s - self.margin_mm,
+            self.cols as f64 * s + self.margin_mm,
+            self.rows as f64 * s + self.margin_mm,
+        ]
+    }
+
     /// Board reflectance at board coordinates (x, y) mm, or `None` off the board.
     fn albedo(&self, x: f64, y: f64) -> Option<f32> {
         let s = self.square_mm;
-        let (x0, y0) = (-s - self.margin_mm, -s - self.margin_mm);
-        let (x1, y1) = (
-            self.cols as f64 * s + self.margin_mm,
-            self.rows as f64 * s + self.margin_mm,
-        );
+        let [x0, y0, x1, y1] = self.extent();
         if x < x0 || y < y0 || x > x1 || y > y1 {
             return None;
         }
@@ -76,6 +84,27 @@ impl ChessboardScene {
     }
 }
 
+impl ChessboardScene {
+    /// The board seen at board point x (mm along the columns) where its
+    /// reflectance is `albedo`: the light falls off across the board
+    /// (uneven lighting), linearly between its first and last columns.
+    fn board_rgb(&self, albedo: f32, x: f64) -> [f32; 3] {
+        let light =
+            0.8 + 0.2 * (x / (self.board.cols as f64 * self.board.square_mm)).clamp(0.0, 1.0);
+        let v = albedo * light as f32;
+        [v, v, v * 0.97]
+    }
+
+    /// The wall 1.6 m away, with blotchy clutter, along the ray.
+    fn wall(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> ([f32; 3], f64) {
+        let t = (1600.0 - origin.z) / dir.z.max(1e-3);
+        let p = origin + dir * t;
+        let noise = ValueNoise::new(self.seed);
+        let v = 0.3 + 0.35 * noise.at(&p, 1.0 / 40.0) as f32;
+        ([v * 0.95, v, v * 1.05], t)
+    }
+}
+
 impl Scene for ChessboardScene {
     fn radiance_at(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> ([f32; 3], f64) {
         let (r, t) = &self.world_to_board;
@@ -85,22 +114,69 @@ impl Scene for ChessboardScene {
             if t > 0.0 {
                 let p = o + d * t;
                 if let Some(a) = self.board.albedo(p.x, p.y) {
-                    // Light falling off across the board (uneven lighting).
-                    let light = 0.8
-                        + 0.2
-                            * (p.x / (self.board.cols as f64 * self.board.square_mm))
-                                .clamp(0.0, 1.0);
-                    let v = a * light as f32;
-                    return ([v, v, v * 0.97], t);
+                    return (self.board_rgb(a, p.x), t);
                 }
             }
         }
-        // A wall 1.6 m away with blotchy clutter.
-        let t = (1600.0 - origin.z) / dir.z.max(1e-3);
-        let p = origin + dir * t;
-        let noise = ValueNoise::new(self.seed);
-        let v = 0.3 + 0.35 * noise.at(&p, 1.0 / 40.0) as f32;
-        ([v * 0.95, v, v * 1.05], t)
+        self.wall(origin, dir)
+    }
+
+    /// The pixel's footprint on the board's plane, cut along the squares'
+    /// edges and the board's outer edge: each piece's area times the board
+    /// at its centroid (exact: the reflectance is constant on a piece and
+    /// the light linear), the pieces off the board the wall at the pixel's
+    /// centre (the clutter varies over 40 mm, not within a pixel). The
+    /// footprint's sides are straight between the corner rays: lens
+    /// distortion bends them by about 1e-4 px within a pixel.
+    fn pixel_mean(
+        &self,
+        origin: &Point3<f64>,
+        corners: &[Vector3<f64>; 4],
+        centre: &Vector3<f64>,
+    ) -> Option<[f32; 3]> {
+        let (r, t) = &self.world_to_board;
+        let o = r * origin.coords + t;
+        let mut quad = Vec::with_capacity(4);
+        for dir in corners {
+            let d = r * dir;
+            if d.z.abs() <= 1e-12 {
+                return None;
+            }
+            let t = -o.z / d.z;
+            if t <= 0.0 {
+                return None;
+            }
+            quad.push([o.x + d.x * t, o.y + d.y * t]);
+        }
+        let quad = Polygon(quad);
+        let s = self.board.square_mm;
+        let [x0, y0, x1, y1] = self.board.extent();
+        let cuts = |axis: usize, edges: [f64; 2]| -> Vec<f64> {
+            let (lo, hi) = quad.range(axis);
+            let mut cuts: Vec<f64> = (fast_floor(lo / s) + 1..=fast_floor(hi / s))
+                .map(|k| k as f64 * s)
+                .collect();
+            cuts.extend(edges.into_iter().filter(|&e| e > lo && e < hi));
+            cuts
+        };
+        let (cuts_x, cuts_y) = (cuts(0, [x0, x1]), cuts(1, [y0, y1]));
+        let parts = pieces(quad, &cuts_x, &cuts_y);
+        let total: f64 = parts.iter().map(|p| p.0).sum();
+        if !(total > 0.0 && total.is_finite()) {
+            return None;
+        }
+        let mut wall = None;
+        let mut sum = [0.0f64; 3];
+        for (area, [x, y]) in parts {
+            let rgb = match self.board.albedo(x, y) {
+                Some(a) => self.board_rgb(a, x),
+                None => *wall.get_or_insert_with(|| self.wall(origin, centre).0),
+            };
+            for (acc, v) in sum.iter_mut().zip(rgb) {
+                *acc += area * v as f64;
+            }
+        }
+        Some(sum.map(|v| (v / total) as f32))
     }
 }
 
@@ -318,6 +394,175 @@ mod tests {
     use crate::phantom::sensor::SensorParams;
     use crate::phantom::{PhantomShape, ShapeParams};
     use rand::SeedableRng;
+
+    /// The calibration board 500 mm in front of a camera at the origin,
+    /// turned so that its edges cross pixels at every angle.
+    fn tilted_board() -> (Chessboard, Isometry3<f64>) {
+        let board = Chessboard {
+            cols: 9,
+            rows: 6,
+            square_mm: 25.0,
+            margin_mm: 20.0,
+        };
+        let pose = Isometry3::new(
+            Vector3::new(-110.0, -70.0, 500.0),
+            Vector3::new(0.17, 0.44, 0.05),
+        );
+        (board, pose)
+    }
+
+    /// The unit ray through pixel (u, v) of a pinhole camera at the origin
+    /// (f = 1333 px, principal point (400, 300)).
+    fn pinhole_ray(u: f64, v: f64) -> Vector3<f64> {
+        Vector3::new((u - 400.0) / 1333.0, (v - 300.0) / 1333.0, 1.0).normalize()
+    }
+
+    /// The mean of n x n rays over pixel (u, v).
+    fn supersampled(scene: &ChessboardScene, u: f64, v: f64, n: usize) -> [f64; 3] {
+        let mut sum = [0.0; 3];
+        for i in 0..n {
+            for j in 0..n {
+                let at = |k: usize| (k as f64 + 0.5) / n as f64 - 0.5;
+                let rgb = scene.radiance(&Point3::origin(), &pinhole_ray(u + at(i), v + at(j)));
+                for (s, c) in sum.iter_mut().zip(rgb) {
+                    *s += c as f64;
+                }
+            }
+        }
+        sum.map(|s| s / (n * n) as f64)
+    }
+
+    #[test]
+    fn a_boards_pixel_mean_is_its_finely_supersampled_mean() {
+        let (board, pose) = tilted_board();
+        let [x0, y0, x1, y1] = board.extent();
+        // Pixels at and around the inner corners (where two edges cross),
+        // the board's outer corners (board, margin and wall) and the middle
+        // of its outer edges.
+        let mut marks: Vec<Point3<f64>> = board.corners().into_iter().step_by(3).collect();
+        marks.extend([
+            Point3::new(x0, y0, 0.0),
+            Point3::new(x1, y1, 0.0),
+            Point3::new(x0, 0.5 * (y0 + y1), 0.0),
+            Point3::new(0.5 * (x0 + x1), y1, 0.0),
+        ]);
+        let scene = ChessboardScene::new(board, &pose, 7);
+        let (mut mixed, mut worst, mut worst_4x4) = (0, 0.0f64, 0.0f64);
+        for mark in marks {
+            let p = pose * mark;
+            let (u, v) = (400.0 + 1333.0 * p.x / p.z, 300.0 + 1333.0 * p.y / p.z);
+            for (du, dv) in (-1..=1).flat_map(|du| (-1..=1).map(move |dv| (du, dv))) {
+                let (u, v) = (u.round() + du as f64, v.round() + dv as f64);
+                let corners = [(-0.5, -0.5), (0.5, -0.5), (0.5, 0.5), (-0.5, 0.5)]
+                    .map(|(a, b)| pinhole_ray(u + a, v + b));
+                let exact = scene
+                    .pixel_mean(&Point3::origin(), &corners, &pinhole_ray(u, v))
+                    .expect("every corner ray meets the board's plane");
+                let reference = supersampled(&scene, u, v, 64);
+                let coarse = supersampled(&scene, u, v, 4);
+                for ch in 0..3 {
+                    worst = worst.max((exact[ch] as f64 - reference[ch]).abs());
+                    worst_4x4 = worst_4x4.max((coarse[ch] - reference[ch]).abs());
+                }
+                let seen: Vec<f32> = corners
+                    .iter()
+                    .map(|d| scene.radiance(&Point3::origin(), d)[1])
+                    .collect();
+                let spread = seen.iter().fold(0.0f32, |m, v| m.max(*v))
+                    - seen.iter().fold(1.0f32, |m, v| m.min(*v));
+                mixed += usize::from(spread > 0.3);
+            }
+        }
+        assert!(mixed >= 30, "only {mixed} pixels straddle an edge");
+        // 64 x 64 samples measure an edge's coverage to about 1/128 of the
+        // 0.75 contrast; 4 x 4 only to 1/8 of it.
+        assert!(worst < 6e-3, "exact against 64 x 64 samples: {worst}");
+        assert!(
+            worst_4x4 > 3.0 * worst,
+            "4 x 4 samples {worst_4x4}, exact {worst}"
+        );
+    }
+
+    /// The board seen through `radiance_at` alone: every pixel an edge
+    /// crosses is supersampled. Counts the rays.
+    struct Sampled<'a> {
+        scene: &'a ChessboardScene,
+        rays: std::sync::atomic::AtomicUsize,
+    }
+
+    impl Scene for Sampled<'_> {
+        fn radiance_at(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> ([f32; 3], f64) {
+            self.rays.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            self.scene.radiance_at(origin, dir)
+        }
+
+        fn pixel_mean(
+            &self,
+            origin: &Point3<f64>,
+            corners: &[Vector3<f64>; 4],
+            centre: &Vector3<f64>,
+        ) -> Option<[f32; 3]> {
+            self.rays
+                .fetch_add(1_000_000, std::sync::atomic::Ordering::Relaxed);
+            self.scene.pixel_mean(origin, corners, centre)
+        }
+    }
+
+    #[test]
+    fn the_renderer_takes_the_boards_pixel_mean_instead_of_supersampling() {
+        let (board, pose) = tilted_board();
+        let scene = ChessboardScene::new(board, &pose, 7);
+        let camera = CameraModel {
+            width: 400,
+            height: 300,
+            fx: 666.5,
+            fy: 666.5,
+            cx: 199.75,
+            cy: 149.75,
+            distortion: [-0.1, 0.05, 0.0, 0.0, 0.0],
+        };
+        let mut sensor = SensorParams::ideal(0.0, 1);
+        sensor.vignetting = 0.0;
+        let params = RenderParams {
+            supersample: 4,
+            texture: TextureSamples::Grid(4),
+            blur_sigma_px: 0.0,
+            lens: None,
+            sensor,
+        };
+        let counted = Sampled {
+            scene: &scene,
+            rays: Default::default(),
+        };
+        let renderer = Renderer::new(&camera);
+        let exact = renderer.render(&Isometry3::identity(), &counted, &params);
+        let calls = counted.rays.load(std::sync::atomic::Ordering::Relaxed);
+        let (means, rays) = (calls / 1_000_000, calls % 1_000_000);
+        // One ray a pixel; the edge pixels took a mean, not 16 rays.
+        assert_eq!(rays, camera.width * camera.height);
+        assert!(means > 1000, "{means} pixels straddle an edge");
+        let supersampled = renderer.render(&Isometry3::identity(), &Unsampled(&scene), &params);
+        // The two differ only at the edge pixels (the accuracy of each is
+        // the test above's), and there by 4 x 4 samples' coverage steps.
+        let differing = exact
+            .chunks(3)
+            .zip(supersampled.chunks(3))
+            .filter(|(a, b)| a != b)
+            .count();
+        assert!(
+            differing > means / 4 && differing <= means,
+            "{differing} of {means}"
+        );
+    }
+
+    /// The board through `radiance_at` alone: no pixel means.
+    struct Unsampled<'a>(&'a ChessboardScene);
+
+    impl Scene for Unsampled<'_> {
+        fn radiance_at(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> ([f32; 3], f64) {
+            self.0.radiance_at(origin, dir)
+        }
+    }
 
     /// A scene seen only through `radiance_at`: no surface keys, so the
     /// renderer casts every supersample along the whole ray.

@@ -8,7 +8,7 @@ use fusegraph_engine::value::PathValue;
 /// Synthetic breast phantom: MRI DICOM series, stereo calibration and phantom
 /// images, ground truth
 #[derive(Debug, Clone, PartialEq, Op)]
-#[op(name = "phantom.generate", version = 4)]
+#[op(name = "phantom.generate", version = 5)]
 pub struct Generate {
     /// Seed of every random choice
     #[param(default = 1, min = 0)]

@@ -400,6 +400,22 @@ fn render_with(
     expose(&image, camera, &p.sensor)
 }
 
+/// The tests' render parameters: `supersample` rays a side at edges,
+/// `texture` where texture alone differs, an ideal noiseless sensor without
+/// vignetting, and no blur or lens.
+#[cfg(test)]
+pub(crate) fn sharp_params(supersample: usize, texture: TextureSamples) -> RenderParams {
+    let mut sensor = SensorParams::ideal(0.0, 1);
+    sensor.vignetting = 0.0;
+    RenderParams {
+        supersample,
+        texture,
+        blur_sigma_px: 0.0,
+        lens: None,
+        sensor,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -483,17 +499,9 @@ mod tests {
     #[test]
     fn texture_alone_takes_its_own_sample_count_and_edges_the_full_one() {
         let camera = camera();
-        let mut sensor = SensorParams::ideal(0.0, 1);
-        sensor.vignetting = 0.0;
         let count = |texture_grid: usize| {
             let scene = StripedHalfPlane::default();
-            let p = RenderParams {
-                supersample: 4,
-                texture: TextureSamples::Grid(texture_grid),
-                blur_sigma_px: 0.0,
-                lens: None,
-                sensor: sensor.clone(),
-            };
+            let p = sharp_params(4, TextureSamples::Grid(texture_grid));
             let rgb = Renderer::new(&camera).render(&Isometry3::identity(), &scene, &p);
             let load =
                 |a: &std::sync::atomic::AtomicUsize| a.load(std::sync::atomic::Ordering::Relaxed);
@@ -558,17 +566,9 @@ mod tests {
     #[test]
     fn quincunx_texture_takes_a_ray_a_pixel_and_keeps_the_box_mean() {
         let camera = camera();
-        let mut sensor = SensorParams::ideal(0.0, 1);
-        sensor.vignetting = 0.0;
         let render = |texture| {
             let scene = CosinePlane::default();
-            let p = RenderParams {
-                supersample: 4,
-                texture,
-                blur_sigma_px: 0.0,
-                lens: None,
-                sensor: sensor.clone(),
-            };
+            let p = sharp_params(4, texture);
             let rgb = Renderer::new(&camera).render(&Isometry3::identity(), &scene, &p);
             let rays = scene.near.load(std::sync::atomic::Ordering::Relaxed);
             (rgb.chunks(3).map(|c| c[0] as i32).collect::<Vec<_>>(), rays)

@@ -390,8 +390,7 @@ mod tests {
     use crate::camera::look_at;
     use crate::phantom::lighting::{Lamp, LampSource};
     use crate::phantom::motion::{MotionField, MotionKind};
-    use crate::phantom::render::{RenderParams, Renderer, TextureSamples};
-    use crate::phantom::sensor::SensorParams;
+    use crate::phantom::render::{Renderer, TextureSamples, sharp_params};
     use crate::phantom::{PhantomShape, ShapeParams};
     use rand::SeedableRng;
 
@@ -521,15 +520,7 @@ mod tests {
             cy: 149.75,
             distortion: [-0.1, 0.05, 0.0, 0.0, 0.0],
         };
-        let mut sensor = SensorParams::ideal(0.0, 1);
-        sensor.vignetting = 0.0;
-        let params = RenderParams {
-            supersample: 4,
-            texture: TextureSamples::Grid(4),
-            blur_sigma_px: 0.0,
-            lens: None,
-            sensor,
-        };
+        let params = sharp_params(4, TextureSamples::Grid(4));
         let counted = Sampled {
             scene: &scene,
             rays: Default::default(),
@@ -612,15 +603,7 @@ mod tests {
             &Point3::new(0.0, 0.0, 25.0),
             &Vector3::z(),
         );
-        let mut sensor = SensorParams::ideal(0.0, 1);
-        sensor.vignetting = 0.0;
-        let params = RenderParams {
-            supersample: 5,
-            texture: TextureSamples::Grid(5),
-            blur_sigma_px: 0.0,
-            lens: None,
-            sensor,
-        };
+        let params = sharp_params(5, TextureSamples::Grid(5));
         let renderer = Renderer::new(&camera);
         let hinted = renderer.render(&pose, &scene, &params);
         let whole = renderer.render(&pose, &Unhinted(&scene), &params);

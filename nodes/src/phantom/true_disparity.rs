@@ -260,10 +260,9 @@ mod tests {
     use crate::calib::{rectify, remap};
     use crate::phantom::lighting::Lighting;
     use crate::phantom::motion::MotionField;
-    use crate::phantom::render::{RenderParams, Renderer, TextureSamples};
+    use crate::phantom::render::{Renderer, TextureSamples, sharp_params};
     use crate::phantom::rig::{Rig, view_poses};
     use crate::phantom::scenes::PhantomScene;
-    use crate::phantom::sensor::SensorParams;
     use crate::phantom::shape::{PhantomShape, ShapeParams};
     use rand::SeedableRng;
 
@@ -320,15 +319,7 @@ mod tests {
                 props: Vec::new(),
                 seed: 11,
             };
-            let mut sensor = SensorParams::ideal(0.0, 1);
-            sensor.vignetting = 0.0;
-            let params = RenderParams {
-                supersample: 1,
-                texture: TextureSamples::Grid(1),
-                blur_sigma_px: 0.0,
-                lens: None,
-                sensor,
-            };
+            let params = sharp_params(1, TextureSamples::Grid(1));
             let grey = |rgb: Vec<u8>| -> Vec<u8> { rgb.chunks(3).map(|c| c[1]).collect() };
             let left = grey(Renderer::new(&rig.left).render(&left_to_world, &render, &params));
             let right_to_world = rig.right_pose(&left_to_world);

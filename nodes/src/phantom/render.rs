@@ -113,7 +113,7 @@ pub enum TextureSamples {
     /// cycles/px: 0.67 at the grid's Nyquist rate (the box 0.64, the 2 x 2
     /// grid 0.71), 0.43 at 0.75 (the grid 0.38), 1/3 at 1 (the grid 0). On
     /// the full phantom (seeds 1-4) the main job's camera-surface RMS and
-    /// TRE matched the 2 x 2 grid's within 4 %, its views rendered in 25 %
+    /// TRE matched the 2 x 2 grid's within 5 %, its views rendered in 25 %
     /// less time.
     Quincunx,
 }

@@ -143,6 +143,11 @@ enum CacheCommand {
         /// Never remove an entry used this recently.
         #[arg(long, default_value = "1h", value_parser = fusegraph_engine::cache_admin::parse_age)]
         keep_recent: std::time::Duration,
+        /// Also remove the folders of older entry formats (v1, v2, ...
+        /// below this build's), which this build never reads: only once no
+        /// older fusegraph uses this cache.
+        #[arg(long)]
+        old_formats: bool,
         /// Only list what would be removed.
         #[arg(long)]
         dry_run: bool,
@@ -194,8 +199,8 @@ fn cache_command(what: CacheCommand) -> anyhow::Result<u8> {
             }
             for (folder, bytes) in &s.older_formats {
                 println!(
-                    "{} {}: an older format this build does not read and gc leaves; remove the \
-                     folder once no older fusegraph uses this cache",
+                    "{} {}: an older format this build does not read; `fusegraph cache gc \
+                     --old-formats` removes it once no older fusegraph uses this cache",
                     folder.display(),
                     admin::human_bytes(*bytes)
                 );
@@ -213,11 +218,27 @@ fn cache_command(what: CacheCommand) -> anyhow::Result<u8> {
             older_than,
             max_size,
             keep_recent,
+            old_formats,
             dry_run,
         } => {
             let dir = dir_or_default(dir);
-            if older_than.is_none() && max_size.is_none() {
-                anyhow::bail!("cache gc: give --older-than AGE, --max-size SIZE or both");
+            if older_than.is_none() && max_size.is_none() && !old_formats {
+                anyhow::bail!(
+                    "cache gc: give --older-than AGE, --max-size SIZE, --old-formats or several"
+                );
+            }
+            if old_formats {
+                for (folder, bytes) in admin::remove_older_formats(&dir, dry_run)? {
+                    println!(
+                        "{} older format {} ({})",
+                        if dry_run { "would remove" } else { "removed" },
+                        folder.display(),
+                        admin::human_bytes(bytes)
+                    );
+                }
+                if older_than.is_none() && max_size.is_none() {
+                    return Ok(0);
+                }
             }
             let limits = admin::GcLimits {
                 older_than,

@@ -98,6 +98,27 @@ pub fn older_formats(dir: &Path) -> Vec<(PathBuf, u64)> {
         .collect()
 }
 
+/// Removes the folders of older entry formats in the cache at `dir` (see
+/// [`older_formats`]) and returns them with the bytes each held; with
+/// `dry_run`, only returns them. Only for a cache no older fusegraph uses
+/// any more: a run of an older build on one of them loses its cache (it
+/// recomputes, its results stay right). A symbolic link is removed, not
+/// followed.
+pub fn remove_older_formats(dir: &Path, dry_run: bool) -> io::Result<Vec<(PathBuf, u64)>> {
+    let older = older_formats(dir);
+    if !dry_run {
+        for (path, _) in &older {
+            let removed = if path.is_symlink() {
+                std::fs::remove_file(path)
+            } else {
+                std::fs::remove_dir_all(path)
+            };
+            removed.map_err(|e| io::Error::new(e.kind(), format!("{}: {e}", path.display())))?;
+        }
+    }
+    Ok(older)
+}
+
 /// `n` bytes for people: `1.3 GiB`.
 pub fn human_bytes(n: u64) -> String {
     let units = ["B", "KiB", "MiB", "GiB", "TiB"];
@@ -498,6 +519,16 @@ mod tests {
         .unwrap();
         assert!(report.removed.is_empty());
         assert!(old.join("ab").join("x.entry").exists());
+        // Removed only when asked, and never the current format's folder.
+        let listed = remove_older_formats(dir.path(), true).unwrap();
+        assert_eq!(listed, s.older_formats);
+        assert!(old.exists());
+        let removed = remove_older_formats(dir.path(), false).unwrap();
+        assert_eq!(removed, s.older_formats);
+        assert!(!old.exists());
+        assert!(dir.path().join(format!("v{FORMAT_VERSION}")).exists());
+        assert!(dir.path().join("notes").exists());
+        assert!(remove_older_formats(dir.path(), false).unwrap().is_empty());
     }
 
     #[test]

@@ -83,18 +83,17 @@ pub fn pieces(polygon: Polygon, cuts_x: &[f64], cuts_y: &[f64]) -> Vec<(f64, [f6
     let mut parts = vec![polygon];
     for (axis, cuts) in [(0, cuts_x), (1, cuts_y)] {
         for &at in cuts {
-            parts = parts
-                .into_iter()
-                .flat_map(|p| {
-                    let (lo, hi) = p.range(axis);
-                    if at <= lo || at >= hi {
-                        vec![p]
-                    } else {
-                        let (below, above) = p.split(axis, at);
-                        vec![below, above]
-                    }
-                })
-                .collect();
+            let mut cut = Vec::with_capacity(parts.len() + 1);
+            for p in parts {
+                let (lo, hi) = p.range(axis);
+                if at <= lo || at >= hi {
+                    cut.push(p);
+                } else {
+                    let (below, above) = p.split(axis, at);
+                    cut.extend([below, above]);
+                }
+            }
+            parts = cut;
         }
     }
     parts

@@ -95,6 +95,23 @@ impl ChessboardScene {
         [v, v, v * 0.97]
     }
 
+    /// Where the ray from `origin` along `dir` (world frame) meets the
+    /// board's plane, in board coordinates (mm), and how far along it, mm;
+    /// `None` for a ray parallel to the plane or pointing away from it.
+    fn on_board_plane(
+        &self,
+        origin: &Point3<f64>,
+        dir: &Vector3<f64>,
+    ) -> Option<(Vector3<f64>, f64)> {
+        let (r, t) = &self.world_to_board;
+        let (o, d) = (r * origin.coords + t, r * dir);
+        if d.z.abs() <= 1e-12 {
+            return None;
+        }
+        let t = -o.z / d.z;
+        (t > 0.0).then(|| (o + d * t, t))
+    }
+
     /// The wall 1.6 m away, with blotchy clutter, along the ray.
     fn wall(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> ([f32; 3], f64) {
         let t = (1600.0 - origin.z) / dir.z.max(1e-3);
@@ -107,16 +124,10 @@ impl ChessboardScene {
 
 impl Scene for ChessboardScene {
     fn radiance_at(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> ([f32; 3], f64) {
-        let (r, t) = &self.world_to_board;
-        let (o, d) = (r * origin.coords + t, r * dir);
-        if d.z.abs() > 1e-12 {
-            let t = -o.z / d.z;
-            if t > 0.0 {
-                let p = o + d * t;
-                if let Some(a) = self.board.albedo(p.x, p.y) {
-                    return (self.board_rgb(a, p.x), t);
-                }
-            }
+        if let Some((p, t)) = self.on_board_plane(origin, dir)
+            && let Some(a) = self.board.albedo(p.x, p.y)
+        {
+            return (self.board_rgb(a, p.x), t);
         }
         self.wall(origin, dir)
     }
@@ -134,21 +145,12 @@ impl Scene for ChessboardScene {
         corners: &[Vector3<f64>; 4],
         centre: &Vector3<f64>,
     ) -> Option<[f32; 3]> {
-        let (r, t) = &self.world_to_board;
-        let o = r * origin.coords + t;
-        let mut quad = Vec::with_capacity(4);
-        for dir in corners {
-            let d = r * dir;
-            if d.z.abs() <= 1e-12 {
-                return None;
-            }
-            let t = -o.z / d.z;
-            if t <= 0.0 {
-                return None;
-            }
-            quad.push([o.x + d.x * t, o.y + d.y * t]);
-        }
-        let quad = Polygon(quad);
+        let quad = Polygon(
+            corners
+                .iter()
+                .map(|dir| self.on_board_plane(origin, dir).map(|(p, _)| [p.x, p.y]))
+                .collect::<Option<_>>()?,
+        );
         let s = self.board.square_mm;
         let [x0, y0, x1, y1] = self.board.extent();
         let cuts = |axis: usize, edges: [f64; 2]| -> Vec<f64> {

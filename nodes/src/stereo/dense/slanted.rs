@@ -251,6 +251,9 @@ struct ShapeFit {
     /// Each sample's fitted terms (1, u, v, u^2, u v, v^2; u, v in
     /// half-windows; the bend's zero for a plane).
     terms: Vec<SVector<f64, 6>>,
+    /// The same by term: `columns[c][k]` is `terms[k][c]`, so a fit is
+    /// evaluated at every sample in loops that vectorise.
+    columns: [[f64; (SHAPE_GRID * SHAPE_GRID) as usize]; 6],
     /// The fit when every sample is valid (the common case, and the
     /// costly part: this runs for every pixel and window size): the
     /// coefficients are `solve * samples`.
@@ -293,10 +296,12 @@ impl ShapeFit {
             .iter()
             .map(|&(i, j)| i + j * map_width as isize)
             .collect();
+        let columns = std::array::from_fn(|c| std::array::from_fn(|k| terms[k][c]));
         let mut fit = ShapeFit {
             offsets,
             flat_offsets,
             terms,
+            columns,
             solve: None,
             hat: Vec::new(),
             normal_all,
@@ -424,6 +429,23 @@ impl ShapeFit {
         self.normal_matrix(used).cholesky().map(|c| c.solve(&b))
     }
 
+    /// The fit `coefficients` at every sample: `terms[k].dot(coefficients)`
+    /// for each k, summed in the order nalgebra's `dot` sums a 6-vector
+    /// (from zero, term by term), so the same bits, but for all samples at
+    /// once.
+    fn evaluate(
+        &self,
+        coefficients: &SVector<f64, 6>,
+    ) -> [f64; (SHAPE_GRID * SHAPE_GRID) as usize] {
+        let mut fitted = [0.0f64; (SHAPE_GRID * SHAPE_GRID) as usize];
+        for (column, &coefficient) in self.columns.iter().zip(coefficients.iter()) {
+            for (f, &t) in fitted.iter_mut().zip(column) {
+                *f += t * coefficient;
+            }
+        }
+        fitted
+    }
+
     /// The map's shape around (x, y); `None` with under half the samples
     /// valid.
     fn shape_at(&self, map: &MapView, x: isize, y: isize) -> Option<[f32; 5]> {
@@ -462,9 +484,9 @@ impl ShapeFit {
             }
         }
         let first = self.fit_without(&samples, &valid)?;
-        let inliers: [bool; (SHAPE_GRID * SHAPE_GRID) as usize] = std::array::from_fn(|k| {
-            valid[k] && (samples[k] - self.terms[k].dot(&first)).abs() <= OFF_SHAPE_PX
-        });
+        let fitted = self.evaluate(&first);
+        let inliers: [bool; (SHAPE_GRID * SHAPE_GRID) as usize] =
+            std::array::from_fn(|k| valid[k] && (samples[k] - fitted[k]).abs() <= OFF_SHAPE_PX);
         let c = if inliers == valid {
             first
         } else {
@@ -626,6 +648,36 @@ mod tests {
         assert!((z[0] - 0.5).abs() < 1e-15 && z[1].abs() < 1e-15, "{z:?}");
         let (mut m, mut z) = ([1.0, 1.0, 1.0, 1.0], [1.0, 1.0]);
         assert!(solve_spd_in_place(&mut m, &mut z).is_none());
+    }
+
+    /// The fit evaluated at every sample at once gives the bits of each
+    /// sample's own dot product (the inliers, and so every refined value,
+    /// depend on them): coefficients of every size and sign, some zero.
+    #[test]
+    fn a_fit_evaluated_at_every_sample_has_the_dot_products_bits() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(8);
+        for quadratic in [false, true] {
+            for half in [1, 4, 10, 15] {
+                let fit = ShapeFit::new(half, quadratic, 100);
+                for round in 0..200 {
+                    let c = SVector::<f64, 6>::from_fn(|r, _| {
+                        if round % 7 == r {
+                            0.0
+                        } else {
+                            rng.random_range(-1.0..1.0) * 10f64.powi(rng.random_range(-6..4))
+                        }
+                    });
+                    let fitted = fit.evaluate(&c);
+                    for (k, t) in fit.terms.iter().enumerate() {
+                        assert_eq!(
+                            fitted[k].to_bits(),
+                            t.dot(&c).to_bits(),
+                            "sample {k} of {c:?}"
+                        );
+                    }
+                }
+            }
+        }
     }
 
     #[test]

@@ -490,28 +490,20 @@ fn icp_bench(n: usize, iterations: usize, out: Option<&std::path::Path>) -> anyh
                 .map_err(anyhow::Error::msg)?;
                 Ok((t.elapsed().as_secs_f64() * 1e3, r))
             };
-        let (mut ms, r) = run(iterations)?;
-        if method == IcpMethod::Gicp {
-            ms -= covariances_ms;
-        }
+        let (run_ms, r) = run(iterations)?;
         // As peers.py times small_gicp: a run of a third as many
         // iterations, taken from this one, leaves the cost of the later
         // iterations alone (no set-up, none of the first steps, whose
         // points lie millimetres off the target and cost a k-d tree several
-        // times more per search).
+        // times more per search; GICP's covariances cancel too).
         let short = iterations / 3;
         let later = if short >= 1 && short < r.iterations {
             let (short_ms, short_run) = run(short)?;
             let extra = r.iterations - short_run.iterations;
-            let covariances = if method == IcpMethod::Gicp {
-                covariances_ms
-            } else {
-                0.0
-            };
             (extra > 0).then(|| {
                 format!(
                     "{:.1} ms per iteration over iterations {}-{} (this run less one of {}, as peers.py times small_gicp); ",
-                    (ms + covariances - short_ms) / extra as f64,
+                    (run_ms - short_ms) / extra as f64,
                     short_run.iterations + 1,
                     r.iterations,
                     short_run.iterations,
@@ -519,6 +511,12 @@ fn icp_bench(n: usize, iterations: usize, out: Option<&std::path::Path>) -> anyh
             })
         } else {
             None
+        };
+        // The whole run's mean, GICP's covariances left out (timed above).
+        let ms = if method == IcpMethod::Gicp {
+            run_ms - covariances_ms
+        } else {
+            run_ms
         };
         println!(
             "  {method:?}: {}{:.1} ms per iteration over all {} (rmse {:.3} mm, fitness {:.3})",

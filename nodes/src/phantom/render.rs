@@ -601,15 +601,7 @@ mod tests {
 
     #[test]
     fn anti_aliasing_gives_fractional_edge_coverage() {
-        let mut sensor = SensorParams::ideal(0.0, 1);
-        sensor.vignetting = 0.0;
-        let p = RenderParams {
-            supersample: 8,
-            texture: TextureSamples::Grid(8),
-            blur_sigma_px: 0.0,
-            lens: None,
-            sensor,
-        };
+        let p = sharp_params(8, TextureSamples::Grid(8));
         let img = Renderer::new(&camera()).render(&Isometry3::identity(), &HalfPlane, &p);
         // The edge projects to u = cx = 31.7: pixel 31 spans [30.5, 31.5] (white),
         // pixel 32 spans [31.5, 32.5], white over 0.2 of its width, which 8
@@ -656,14 +648,9 @@ mod tests {
             focus_mm: 300.0,
             pixel_mm,
         };
-        let mut sensor = SensorParams::ideal(0.0, 1);
-        sensor.vignetting = 0.0;
         let p = RenderParams {
-            supersample: 8,
-            texture: TextureSamples::Grid(8),
-            blur_sigma_px: 0.0,
             lens: Some(lens),
-            sensor,
+            ..sharp_params(8, TextureSamples::Grid(8))
         };
         let scene = FarHalfPlane { depth: 600.0 };
         // The line spread's standard deviation along the middle row, px.

@@ -139,6 +139,22 @@ pub enum BenchCommand {
         #[arg(long)]
         max_window_px: Option<usize>,
     },
+    /// The deformable fit (register.deformable's solver with its defaults)
+    /// on a synthetic breast: a dome's skin scanned, seen from above sagged
+    /// by --sag-mm at the apex, 12 markers on both; time (best of
+    /// --repeat), the solver's work and the field's error inside against
+    /// the sag.
+    Deformable {
+        /// Scanned skin points (and about as many seen).
+        #[arg(long, default_value_t = 20_000, value_parser = count::<2_000_000>)]
+        points: usize,
+        /// The sag at the apex, mm (0 to 30).
+        #[arg(long, default_value_t = 8.0)]
+        sag_mm: f64,
+        /// Repetitions; the best time is reported.
+        #[arg(long, default_value_t = 5, value_parser = count::<1000>)]
+        repeat: usize,
+    },
     /// Chessboard detection (calib.find_chessboard) on every image of a
     /// folder, on one thread, decoding included: each image's outcome and the
     /// time per image (best of --repeat); --out writes corners.csv.
@@ -352,6 +368,11 @@ pub fn run_bench(what: BenchCommand, registry: &Registry) -> anyhow::Result<()> 
             };
             crate::bench_refine::run(&cases, repeat, overrides)
         }
+        BenchCommand::Deformable {
+            points,
+            sag_mm,
+            repeat,
+        } => crate::bench_deformable::run(points, sag_mm, repeat),
         BenchCommand::Chessboard {
             dir,
             glob,

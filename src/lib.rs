@@ -5,6 +5,7 @@
 mod bench;
 mod bench_calibration;
 mod bench_chessboard;
+mod bench_deformable;
 mod bench_phantom;
 mod bench_refine;
 mod bench_sgm;

@@ -49,6 +49,7 @@ fn sizes_out_of_range_are_refused_before_allocating() {
         &["bench", "icp", "--iterations", "0"][..],
         &["bench", "marching-cubes", "--size", "100000"][..],
         &["bench", "scheduler", "--nodes", "0"][..],
+        &["bench", "deformable", "--points", "0"][..],
     ] {
         let o = fusegraph(args, t.path());
         assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
@@ -58,6 +59,29 @@ fn sizes_out_of_range_are_refused_before_allocating() {
             stderr(&o)
         );
     }
+}
+
+#[test]
+fn bench_deformable_refuses_a_sag_out_of_range_and_follows_a_small_one() {
+    let t = tempfile::tempdir().unwrap();
+    let o = fusegraph(&["bench", "deformable", "--sag-mm", "40"], t.path());
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("--sag-mm 40"), "{}", stderr(&o));
+    // 3000 points a skin: the field brings the inside within a quarter of
+    // the sag (about 3-5 mm at those points), as the fit's own tests ask.
+    let o = fusegraph(
+        &["bench", "deformable", "--points", "3000", "--repeat", "1"],
+        t.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let printed = String::from_utf8_lossy(&o.stdout).into_owned();
+    let worst: f64 = printed
+        .split("worst ")
+        .nth(1)
+        .and_then(|rest| rest.split(' ').next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no worst error in {printed}"));
+    assert!(worst < 1.0, "{printed}");
 }
 
 #[cfg(unix)]

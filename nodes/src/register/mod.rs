@@ -18,6 +18,7 @@ mod procrustes;
 mod target_error;
 mod targets;
 
+pub use deformable::synthetic as synthetic_breast;
 pub use deformable::{
     DeformParams, Deformation, FIELD_COLUMNS, LandmarkPairs, Lattice, Support, base_on,
     displacement_stats, fit_deformation,

@@ -29,6 +29,12 @@ use rayon::prelude::*;
 /// neighbourhood, then the 6 two nodes along an axis (bending).
 const SLOTS: usize = 33;
 
+/// The couplings with a node itself or a later one (the offsets whose
+/// (z, y, x) is lexicographically at least zero): the cell neighbourhood's
+/// centre and its 13 later neighbours, then two nodes on along each axis.
+/// The matrix is symmetric, so these are all the assembly sums.
+const UPPER_SLOTS: usize = 17;
+
 /// The slot of the block coupling a node with the node `d` away.
 fn slot(d: [isize; 3]) -> usize {
     if d.iter().all(|c| c.abs() <= 1) {
@@ -42,6 +48,17 @@ fn slot(d: [isize; 3]) -> usize {
     }
 }
 
+/// The upper slot of an offset on or after the node (see [`UPPER_SLOTS`]);
+/// `None` for an earlier one.
+fn upper_slot(d: [isize; 3]) -> Option<usize> {
+    let s = slot(d);
+    match s {
+        13..27 => Some(s - 13),
+        27.. => s.is_multiple_of(2).then(|| 14 + (s - 27) / 2),
+        _ => None,
+    }
+}
+
 /// The offset a slot stands for (the inverse of [`slot`]).
 fn offset(s: usize) -> [isize; 3] {
     if s < 27 {
@@ -52,6 +69,38 @@ fn offset(s: usize) -> [isize; 3] {
         d[(s - 27) / 2] = if (s - 27) % 2 == 1 { 2 } else { -2 };
         d
     }
+}
+
+/// A symmetric 3 x 3 block's entries xx, xy, xz, yy, yz, zz. Every block
+/// of the system is symmetric (each term's weight is, and the
+/// regularisers add multiples of the identity), so the assembly sums six
+/// entries, not nine.
+type SymBlock = [f64; 6];
+
+/// The (row, column) of each of a [`SymBlock`]'s entries.
+const SYM_ENTRIES: [(usize, usize); 6] = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)];
+
+/// Where a [`SymBlock`]'s diagonal entries are.
+const SYM_DIAGONAL: [usize; 3] = [0, 3, 5];
+
+fn sym_entries(m: &Matrix3<f64>) -> SymBlock {
+    SYM_ENTRIES.map(|(i, j)| m[(i, j)])
+}
+
+fn sym_matrix(b: &SymBlock) -> Matrix3<f64> {
+    Matrix3::new(b[0], b[1], b[2], b[1], b[3], b[4], b[2], b[4], b[5])
+}
+
+/// The block times `x`, each entry summed in the order nalgebra's `M * x`
+/// sums it (column by column), so the result has the same bits; the
+/// blocks take two thirds of the memory the sweeps stream through.
+#[inline]
+fn sym_times(b: &SymBlock, x: &Vector3<f64>) -> Vector3<f64> {
+    Vector3::new(
+        b[0] * x[0] + b[1] * x[1] + b[2] * x[2],
+        b[1] * x[0] + b[3] * x[1] + b[4] * x[2],
+        b[2] * x[0] + b[4] * x[1] + b[5] * x[2],
+    )
 }
 
 /// A term whose rows sit at one point: its position in the finest
@@ -75,7 +124,8 @@ pub(super) struct Regularisers {
 pub(super) struct BlockMatrix {
     starts: Vec<usize>,
     columns: Vec<usize>,
-    blocks: Vec<Matrix3<f64>>,
+    /// The blocks, each symmetric (see [`SymBlock`]).
+    blocks: Vec<SymBlock>,
     /// Each row's diagonal block, inverted.
     diagonal_inverse: Vec<Matrix3<f64>>,
 }
@@ -91,14 +141,17 @@ impl BlockMatrix {
         regularisers: Regularisers,
     ) -> BlockMatrix {
         let nodes = dims.iter().product::<usize>();
-        let mut rows = vec![[Matrix3::zeros(); SLOTS]; nodes];
+        let mut rows = vec![[[0.0; 6]; UPPER_SLOTS]; nodes];
         let corner = |c: usize| [(c & 1) as isize, ((c >> 1) & 1) as isize, (c >> 2) as isize];
+        // A later corner of a cell is a later node: pairs (a, b >= a) are
+        // the blocks on and above the diagonal.
         let corner_slots: [[usize; 8]; 8] = std::array::from_fn(|a| {
-            std::array::from_fn(|b| slot(std::array::from_fn(|k| corner(b)[k] - corner(a)[k])))
+            std::array::from_fn(|b| {
+                upper_slot(std::array::from_fn(|k| corner(b)[k] - corner(a)[k])).unwrap_or(0)
+            })
         });
-        // Only the blocks on and above the diagonal are summed (a later
-        // corner of a cell is a later node); `compress` mirrors the rest.
         for t in terms {
+            let weight = sym_entries(&t.weight);
             let stencil = trilinear_stencil(dims, t.at.map(|v| v / scale));
             for (a, &(na, wa)) in stencil.iter().enumerate() {
                 if wa == 0.0 {
@@ -106,7 +159,10 @@ impl BlockMatrix {
                 }
                 let row = &mut rows[na];
                 for (b, &(_, wb)) in stencil.iter().enumerate().skip(a) {
-                    row[corner_slots[a][b]] += t.weight * (wa * wb);
+                    let w = wa * wb;
+                    for (entry, m) in row[corner_slots[a][b]].iter_mut().zip(&weight) {
+                        *entry += m * w;
+                    }
                 }
             }
         }
@@ -114,16 +170,23 @@ impl BlockMatrix {
         // bending energy stays (see the module's notes).
         let edge = regularisers.edge * scale;
         let bend = regularisers.bend;
-        let centre = slot([0, 0, 0]);
+        let upper = |d: [isize; 3]| upper_slot(d).expect("an offset on or after the node");
+        let centre = upper([0, 0, 0]);
+        // The slot of the node `k` on along each axis (k = 0, 1, 2).
+        let along: [[usize; 3]; 3] = std::array::from_fn(|axis| {
+            std::array::from_fn(|k| {
+                let mut d = [0isize; 3];
+                d[axis] = k as isize;
+                upper(d)
+            })
+        });
         for n in 0..nodes {
             let at = node_coords(dims, n);
             for axis in 0..3 {
-                let mut unit = [0isize; 3];
-                unit[axis] = 1;
                 if at[axis] + 1 < dims[axis] {
                     let next = node_index(dims, step(at, axis, 1));
                     add_identity(&mut rows[n], centre, edge);
-                    add_identity(&mut rows[n], slot(unit), -edge);
+                    add_identity(&mut rows[n], along[axis][1], -edge);
                     add_identity(&mut rows[next], centre, edge);
                 }
                 if at[axis] > 0 && at[axis] + 1 < dims[axis] {
@@ -135,11 +198,9 @@ impl BlockMatrix {
                     let coefficient = [1.0, -2.0, 1.0];
                     for (i, &ni) in line.iter().enumerate() {
                         for j in i..3 {
-                            let mut d = [0isize; 3];
-                            d[axis] = j as isize - i as isize;
                             add_identity(
                                 &mut rows[ni],
-                                slot(d),
+                                along[axis][j - i],
                                 bend * coefficient[i] * coefficient[j],
                             );
                         }
@@ -150,25 +211,33 @@ impl BlockMatrix {
         BlockMatrix::compress(dims, &rows)
     }
 
-    /// The compressed rows of slot rows that hold the blocks on and above
-    /// the diagonal (those below are their mirrors; zero blocks and
-    /// offsets off the lattice are left out).
-    fn compress(dims: [usize; 3], rows: &[[Matrix3<f64>; SLOTS]]) -> BlockMatrix {
+    /// The compressed rows of the blocks on and above the diagonal that
+    /// `rows` hold (those below are their mirrors, and every block is
+    /// symmetric; zero blocks and offsets off the lattice are left out).
+    fn compress(dims: [usize; 3], rows: &[[SymBlock; UPPER_SLOTS]]) -> BlockMatrix {
         let mut starts = Vec::with_capacity(rows.len() + 1);
-        let mut columns = Vec::new();
-        let mut blocks = Vec::new();
+        let mut columns = Vec::with_capacity(rows.len() * SLOTS);
+        let mut blocks = Vec::with_capacity(rows.len() * SLOTS);
         let mut diagonal_inverse = Vec::with_capacity(rows.len());
-        let mut order: Vec<usize> = (0..SLOTS).collect();
-        // Ascending column order within a row.
-        order.sort_by_key(|&s| {
-            let d = offset(s);
-            (d[2], d[1], d[0])
-        });
+        // Each offset in ascending column order, with the upper slot it is
+        // read from and whether from the later node (mirrored).
+        let mut order: Vec<([isize; 3], usize, bool)> = (0..SLOTS)
+            .map(offset)
+            .map(|d| match upper_slot(d) {
+                Some(u) => (d, u, false),
+                None => (
+                    d,
+                    upper_slot(d.map(|c| -c)).expect("a mirrored offset"),
+                    true,
+                ),
+            })
+            .collect();
+        order.sort_by_key(|&(d, _, _)| (d[2], d[1], d[0]));
+        let stride = [1, dims[0] as isize, (dims[0] * dims[1]) as isize];
         for (n, row) in rows.iter().enumerate() {
             starts.push(columns.len());
             let at = node_coords(dims, n);
-            for &s in &order {
-                let d = offset(s);
+            for &(d, u, mirrored) in &order {
                 let inside = (0..3).all(|k| {
                     let c = at[k] as isize + d[k];
                     c >= 0 && c < dims[k] as isize
@@ -176,21 +245,15 @@ impl BlockMatrix {
                 if !inside {
                     continue;
                 }
-                let to = node_index(
-                    dims,
-                    std::array::from_fn(|k| (at[k] as isize + d[k]) as usize),
-                );
-                let block = if to >= n {
-                    row[s]
-                } else {
-                    rows[to][slot(d.map(|c| -c))].transpose()
-                };
-                if block != Matrix3::zeros() {
+                let to =
+                    (n as isize + d[0] * stride[0] + d[1] * stride[1] + d[2] * stride[2]) as usize;
+                let block = if mirrored { &rows[to][u] } else { &row[u] };
+                if block.iter().any(|&v| v != 0.0) {
                     columns.push(to);
-                    blocks.push(block);
+                    blocks.push(*block);
                 }
             }
-            let diagonal = row[slot([0, 0, 0])];
+            let diagonal = sym_matrix(&row[upper_slot([0, 0, 0]).expect("the centre")]);
             diagonal_inverse.push(diagonal.try_inverse().unwrap_or_else(Matrix3::zeros));
         }
         starts.push(columns.len());
@@ -211,7 +274,7 @@ impl BlockMatrix {
         self.columns[range.clone()]
             .iter()
             .zip(&self.blocks[range])
-            .map(|(&c, b)| b * x[c])
+            .map(|(&c, b)| sym_times(b, &x[c]))
             .sum()
     }
 
@@ -231,7 +294,7 @@ impl BlockMatrix {
             for i in self.starts[n]..self.starts[n + 1] {
                 let c = self.columns[i];
                 if c != n {
-                    rest -= self.blocks[i] * z[c];
+                    rest -= sym_times(&self.blocks[i], &z[c]);
                 }
             }
             z[n] = self.diagonal_inverse[n] * rest;
@@ -250,7 +313,7 @@ impl BlockMatrix {
             for i in self.starts[row]..self.starts[row + 1] {
                 dense
                     .fixed_view_mut::<3, 3>(3 * row, 3 * self.columns[i])
-                    .copy_from(&self.blocks[i]);
+                    .copy_from(&sym_matrix(&self.blocks[i]));
             }
         }
         dense
@@ -263,9 +326,9 @@ fn step(at: [usize; 3], axis: usize, by: isize) -> [usize; 3] {
     to
 }
 
-fn add_identity(row: &mut [Matrix3<f64>; SLOTS], s: usize, w: f64) {
-    for k in 0..3 {
-        row[s][(k, k)] += w;
+fn add_identity(row: &mut [SymBlock; UPPER_SLOTS], s: usize, w: f64) {
+    for k in SYM_DIAGONAL {
+        row[s][k] += w;
     }
 }
 
@@ -294,8 +357,10 @@ struct Level {
 /// One V-cycle as a preconditioner of the finest level's system.
 pub(super) struct Multigrid {
     levels: Vec<Level>,
-    coarsest: Option<nalgebra::Cholesky<f64, nalgebra::Dyn>>,
+    coarsest: Option<Cholesky>,
 }
+
+type Cholesky = nalgebra::Cholesky<f64, nalgebra::Dyn>;
 
 impl Multigrid {
     /// The levels of a system on a lattice of `dims` nodes.
@@ -307,19 +372,21 @@ impl Multigrid {
         {
             sizes.push(coarser(last));
         }
-        // Each level reads every term: they are assembled side by side.
-        let levels: Vec<Level> = sizes
+        // Each level reads every term: they are assembled side by side, and
+        // the coarsest is factored as soon as it is assembled.
+        let coarsest_level = sizes.len() - 1;
+        let (levels, mut factors): (Vec<Level>, Vec<Option<Cholesky>>) = sizes
             .par_iter()
             .enumerate()
-            .map(|(l, &dims)| Level {
-                dims,
-                matrix: BlockMatrix::assemble(dims, (1u64 << l) as f64, terms, regularisers),
+            .map(|(l, &dims)| {
+                let matrix = BlockMatrix::assemble(dims, (1u64 << l) as f64, terms, regularisers);
+                let factor = (l == coarsest_level && matrix.nodes() <= DENSE_NODES)
+                    .then(|| nalgebra::Cholesky::new(matrix.dense()))
+                    .flatten();
+                (Level { dims, matrix }, factor)
             })
-            .collect();
-        let last = &levels[levels.len() - 1].matrix;
-        let coarsest = (last.nodes() <= DENSE_NODES)
-            .then(|| nalgebra::Cholesky::new(last.dense()))
-            .flatten();
+            .unzip();
+        let coarsest = factors.pop().flatten();
         Multigrid { levels, coarsest }
     }
 
@@ -482,6 +549,34 @@ mod tests {
             sum += reg.bend * (x[line[0]] - x[line[1]] * 2.0 + x[line[2]]).norm_squared();
         }
         sum
+    }
+
+    #[test]
+    fn symmetric_blocks_multiply_with_nalgebras_bits() {
+        let mut rng = ChaCha8Rng::seed_from_u64(21);
+        for _ in 0..1000 {
+            let a = Matrix3::from_fn(|_, _| rng.random_range(-1e3..1e3));
+            let m = a + a.transpose();
+            let x = random_vectors(&mut rng, 1)[0] * rng.random_range(1e-6..1e6);
+            let (ours, theirs) = (sym_times(&sym_entries(&m), &x), m * x);
+            assert_eq!(ours.map(f64::to_bits), theirs.map(f64::to_bits));
+            assert_eq!(sym_matrix(&sym_entries(&m)), m);
+        }
+    }
+
+    #[test]
+    fn upper_slots_cover_the_offsets_on_and_after_a_node_once() {
+        let mut seen = [false; UPPER_SLOTS];
+        for s in 0..SLOTS {
+            let d = offset(s);
+            let later = (d[2], d[1], d[0]) >= (0, 0, 0);
+            assert_eq!(upper_slot(d).is_some(), later, "{d:?}");
+            if let Some(u) = upper_slot(d) {
+                assert!(!seen[u], "{d:?}");
+                seen[u] = true;
+            }
+        }
+        assert!(seen.iter().all(|&v| v));
     }
 
     #[test]

@@ -98,7 +98,7 @@ pub fn base_on(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::register::deformable::tests::{dome, dome_with_base};
+    use crate::register::deformable::synthetic::{dome, dome_with_base};
 
     #[test]
     fn a_domes_base_is_found_facing_its_table_and_a_skin_without_one_is_refused() {

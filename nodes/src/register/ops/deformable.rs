@@ -355,7 +355,7 @@ fn landmark_points(
 mod tests {
     use super::*;
     use crate::register::convert::field_from_table;
-    use crate::register::deformable::tests::{dome, dome_with_base};
+    use crate::register::deformable::synthetic::{dome, dome_with_base};
 
     fn cloud(
         points: &[Point3<f64>],

@@ -235,102 +235,217 @@ pub fn laplacian_into(data: &[f32], out: &mut [f32], dims: [usize; 3], spacing_m
 /// edge count as outside. Exact, by Felzenszwalb and Huttenlocher's
 /// separable lower envelope of parabolas ("Distance transforms of sampled
 /// functions", Theory of Computing 8, 2012), one axis at a time.
+///
+/// The first axis needs no envelope: its samples are 0 or infinite, so each
+/// voxel's squared distance is the step to the nearest 0 along its row,
+/// squared, as the envelope would give it. Lines that are all 0 (outside),
+/// most of a scan's, stay 0 and are skipped; the rest reuse one scratch
+/// per task, and the last axis's lines are taken a tile of neighbouring
+/// columns at a time, so each slice is read in runs, not a voxel a line.
 pub fn distance_to_outside_mm(mask: &[u8], dims: [usize; 3], spacing_mm: [f64; 3]) -> Vec<f32> {
     let [nx, ny, nz] = dims;
-    // Squared distance, padded so the volume's edge is outside: a voxel at
-    // index t is at most (t + 1) voxels from the outside before the edge.
-    let far = f64::INFINITY;
-    let mut d2: Vec<f64> = mask
-        .iter()
-        .map(|&m| if m != 0 { far } else { 0.0 })
+    let slice_len = nx * ny;
+    // Neighbouring lines along j and k are transformed this many at a time.
+    const TILE: usize = 64;
+    let mut d2: Vec<f64> = vec![0.0; mask.len()];
+    if mask.is_empty() {
+        return Vec::new();
+    }
+    // Along i: the nearest outside voxel (or the edge) on each side.
+    let step2 = spacing_mm[0] * spacing_mm[0];
+    d2.par_chunks_mut(nx)
+        .zip(mask.par_chunks(nx))
+        .for_each(|(row, inside)| nearest_outside_along_row(inside, row, step2));
+    // Along j each slice's lines stay in the slice: slices in parallel.
+    let step2 = spacing_mm[1] * spacing_mm[1];
+    d2.par_chunks_mut(slice_len).for_each_init(
+        || (Envelope::new(ny), Vec::new()),
+        |(envelope, tile), slice| {
+            for start in (0..nx).step_by(TILE) {
+                let columns = start..(start + TILE).min(nx);
+                if envelope.transform_tile(slice, nx, columns.clone(), step2, tile) {
+                    put_tile(slice, nx, columns, tile);
+                }
+            }
+        },
+    );
+    // Along k a line crosses every slice: tiles of neighbouring columns are
+    // transformed in parallel, then written back slice by slice.
+    let step2 = spacing_mm[2] * spacing_mm[2];
+    let tiles: Vec<Option<Vec<f64>>> = (0..slice_len.div_ceil(TILE))
+        .into_par_iter()
+        .map_init(
+            || Envelope::new(nz),
+            |envelope, t| {
+                let columns = t * TILE..((t + 1) * TILE).min(slice_len);
+                let mut tile = Vec::new();
+                envelope
+                    .transform_tile(&d2, slice_len, columns, step2, &mut tile)
+                    .then_some(tile)
+            },
+        )
         .collect();
-    // One line's transform, the edge as outside: a zero sample one step
-    // beyond each end.
-    let transform_line = |line: &mut dyn Iterator<Item = &mut f64>, n: usize, step2: f64| {
-        let cells: Vec<&mut f64> = line.collect();
-        let mut f = Vec::with_capacity(n + 2);
-        f.push(0.0);
-        f.extend(cells.iter().map(|c| **c));
-        f.push(0.0);
-        let d = lower_envelope(&f, step2);
-        for (c, v) in cells.into_iter().zip(&d[1..=n]) {
-            *c = *v;
-        }
-    };
-    // Along i and j each slice's lines stay in the slice: slices in parallel.
-    for (axis, spacing) in spacing_mm.iter().enumerate().take(2) {
-        let step2 = spacing * spacing;
-        d2.par_chunks_mut(nx * ny).for_each(|slice| match axis {
-            0 => slice
-                .chunks_mut(nx)
-                .for_each(|row| transform_line(&mut row.iter_mut(), nx, step2)),
-            _ => {
-                for i in 0..nx {
-                    transform_line(&mut slice.iter_mut().skip(i).step_by(nx), ny, step2);
+    d2.par_chunks_mut(slice_len)
+        .enumerate()
+        .for_each(|(k, slice)| {
+            for (t, tile) in tiles.iter().enumerate() {
+                let Some(tile) = tile else { continue };
+                let start = t * TILE;
+                let width = tile.len() / nz;
+                for (c, v) in slice[start..start + width].iter_mut().enumerate() {
+                    *v = tile[c * nz + k];
                 }
             }
         });
-    }
-    // Along k a line crosses every slice: transformed in parallel, then
-    // written back.
-    let step2 = spacing_mm[2] * spacing_mm[2];
-    let columns: Vec<Vec<f64>> = (0..nx * ny)
-        .into_par_iter()
-        .map(|start| {
-            let mut line: Vec<f64> = (0..nz).map(|t| d2[start + t * nx * ny]).collect();
-            transform_line(&mut line.iter_mut(), nz, step2);
-            line
-        })
-        .collect();
-    d2.par_chunks_mut(nx * ny)
-        .enumerate()
-        .for_each(|(k, slice)| {
-            for (v, column) in slice.iter_mut().zip(&columns) {
-                *v = column[k];
-            }
-        });
-    d2.into_iter().map(|v| v.sqrt() as f32).collect()
+    d2.par_iter().map(|v| v.sqrt() as f32).collect()
 }
 
-/// The 1-D squared distance transform of samples `f` spaced so that one
-/// step costs `step2` (squared mm): min over q of f(q) + step2 (p - q)^2.
-fn lower_envelope(f: &[f64], step2: f64) -> Vec<f64> {
-    let n = f.len();
-    let mut v = vec![0usize; n];
-    let mut z = vec![0.0f64; n + 1];
-    let mut k = 0usize;
-    let finite: Vec<usize> = (0..n).filter(|&q| f[q].is_finite()).collect();
-    if finite.is_empty() {
-        return vec![f64::INFINITY; n];
-    }
-    v[0] = finite[0];
-    z[0] = f64::NEG_INFINITY;
-    z[1] = f64::INFINITY;
-    let cross = |q: usize, p: usize| {
-        let (q, p) = (q as f64, p as f64);
-        ((f[q as usize] / step2 + q * q) - (f[p as usize] / step2 + p * p)) / (2.0 * (q - p))
-    };
-    for &q in &finite[1..] {
-        let mut s = cross(q, v[k]);
-        while s <= z[k] {
-            k -= 1;
-            s = cross(q, v[k]);
+/// Writes a tile from [`Envelope::transform_tile`] back to the rows of
+/// `volume` it came from.
+fn put_tile(volume: &mut [f64], row_stride: usize, columns: std::ops::Range<usize>, tile: &[f64]) {
+    let n = tile.len() / columns.len();
+    for r in 0..n {
+        let row = &mut volume[r * row_stride + columns.start..r * row_stride + columns.end];
+        for (c, v) in row.iter_mut().enumerate() {
+            *v = tile[c * n + r];
         }
-        k += 1;
-        v[k] = q;
-        z[k] = s;
-        z[k + 1] = f64::INFINITY;
     }
-    let mut out = vec![0.0; n];
-    k = 0;
-    for (p, o) in out.iter_mut().enumerate() {
-        while z[k + 1] < p as f64 {
+}
+
+/// One row of the first axis's transform: `inside` (non-zero = inside) to
+/// squared distances (a step costs `step2`) to the nearest outside voxel,
+/// the row's ends one step beyond its edge counting as outside. Each is
+/// computed as the lower envelope computes it from its nearest 0 sample
+/// (`step2 * d * d + 0`), so the bits are the envelope's.
+fn nearest_outside_along_row(inside: &[u8], out: &mut [f64], step2: f64) {
+    let n = inside.len();
+    // Steps to the nearest outside voxel on the left (the edge at -1).
+    let mut last_outside: isize = -1;
+    for (p, (&m, o)) in inside.iter().zip(out.iter_mut()).enumerate() {
+        if m == 0 {
+            last_outside = p as isize;
+        }
+        *o = (p as isize - last_outside) as f64;
+    }
+    // And on the right (the edge at n); the nearer one wins.
+    let mut next_outside = n as isize;
+    for p in (0..n).rev() {
+        if inside[p] == 0 {
+            next_outside = p as isize;
+        }
+        let d = out[p].min((next_outside - p as isize) as f64);
+        out[p] = step2 * d * d + 0.0;
+    }
+}
+
+/// Scratch for the 1-D squared distance transform of one line at a time.
+struct Envelope {
+    /// The lines' length.
+    len: usize,
+    /// The line, with a 0 sample one step beyond each end (the outside).
+    f: Vec<f64>,
+    /// The parabolas of the lower envelope, and where each starts to be
+    /// lowest.
+    v: Vec<usize>,
+    z: Vec<f64>,
+}
+
+impl Envelope {
+    fn new(n: usize) -> Envelope {
+        Envelope {
+            len: n,
+            f: Vec::with_capacity(n + 2),
+            v: vec![0; n + 2],
+            z: vec![0.0; n + 3],
+        }
+    }
+
+    /// Transforms `line` in place (samples spaced so that a step costs
+    /// `step2`, squared mm); a line all 0 is left as it is. Whether it
+    /// changed anything.
+    fn transform(&mut self, line: &mut [f64], step2: f64) -> bool {
+        if line.iter().all(|&v| v == 0.0) {
+            return false;
+        }
+        self.f.clear();
+        self.f.push(0.0);
+        self.f.extend_from_slice(line);
+        self.f.push(0.0);
+        self.envelope(step2);
+        self.write(line.iter_mut(), step2);
+        true
+    }
+
+    /// Transforms the lines across the rows of `volume` (`row_stride`
+    /// apart, [`Envelope::len`] of them) at `columns` into
+    /// `tile` (a line a column, along the rows); whether any line changed
+    /// (is not all 0).
+    fn transform_tile(
+        &mut self,
+        volume: &[f64],
+        row_stride: usize,
+        columns: std::ops::Range<usize>,
+        step2: f64,
+        tile: &mut Vec<f64>,
+    ) -> bool {
+        let n = self.len;
+        let width = columns.len();
+        tile.clear();
+        tile.resize(width * n, 0.0);
+        for r in 0..n {
+            let row = &volume[r * row_stride + columns.start..r * row_stride + columns.end];
+            for (c, &v) in row.iter().enumerate() {
+                tile[c * n + r] = v;
+            }
+        }
+        let mut changed = false;
+        for line in tile.chunks_mut(n) {
+            changed |= self.transform(line, step2);
+        }
+        changed
+    }
+
+    /// The lower envelope of the parabolas at `f`'s finite samples (both
+    /// padding samples are finite, so there is one).
+    fn envelope(&mut self, step2: f64) {
+        let (f, v, z) = (&self.f, &mut self.v, &mut self.z);
+        let cross = |q: usize, p: usize| {
+            let (q, p) = (q as f64, p as f64);
+            ((f[q as usize] / step2 + q * q) - (f[p as usize] / step2 + p * p)) / (2.0 * (q - p))
+        };
+        let mut k = 0usize;
+        v[0] = 0;
+        z[0] = f64::NEG_INFINITY;
+        z[1] = f64::INFINITY;
+        for (q, fq) in f.iter().enumerate().skip(1) {
+            if !fq.is_finite() {
+                continue;
+            }
+            let mut s = cross(q, v[k]);
+            while s <= z[k] {
+                k -= 1;
+                s = cross(q, v[k]);
+            }
             k += 1;
+            v[k] = q;
+            z[k] = s;
+            z[k + 1] = f64::INFINITY;
         }
-        let dp = p as f64 - v[k] as f64;
-        *o = step2 * dp * dp + f[v[k]];
     }
-    out
+
+    /// The envelope's values at the line's own samples (not the padding),
+    /// into `out`.
+    fn write<'a>(&self, out: impl Iterator<Item = &'a mut f64>, step2: f64) {
+        let (f, v, z) = (&self.f, &self.v, &self.z);
+        let mut k = 0;
+        for (p, o) in (1..f.len() - 1).zip(out) {
+            while z[k + 1] < p as f64 {
+                k += 1;
+            }
+            let dp = p as f64 - v[k] as f64;
+            *o = step2 * dp * dp + f[v[k]];
+        }
+    }
 }
 
 /// `mask` with its holes filled: outside voxels (zero) that no 6-connected
@@ -492,18 +607,37 @@ mod tests {
 
     #[test]
     fn distances_match_a_brute_force_search_on_a_random_mask() {
-        // Unequal sides and spacings, so a mix-up of axes shows.
-        let (dims, spacing) = ([7usize, 9, 6], [0.7, 1.1, 1.9]);
+        // Unequal sides and spacings, so a mix-up of axes shows; the second
+        // mask is wider than a tile of lines (and not a whole number of
+        // them), mostly outside (lines all 0 are skipped), with a solid
+        // block whose rows hold no outside voxel.
         let mut state = 0x2545_F491_4F6C_DD1Du64;
-        let mask: Vec<u8> = (0..dims.iter().product::<usize>())
-            .map(|_| {
-                state ^= state << 13;
-                state ^= state >> 7;
-                state ^= state << 17;
-                u8::from(state % 10 < 8)
-            })
-            .collect();
-        let d = distance_to_outside_mm(&mask, dims, spacing);
+        let mut random = |inside_in_10: u64, n: usize| -> Vec<u8> {
+            (0..n)
+                .map(|_| {
+                    state ^= state << 13;
+                    state ^= state >> 7;
+                    state ^= state << 17;
+                    u8::from(state % 10 < inside_in_10)
+                })
+                .collect()
+        };
+        let small = ([7usize, 9, 6], [0.7, 1.1, 1.9]);
+        let wide = ([71usize, 5, 4], [0.6, 0.6, 1.0]);
+        let mut sparse = random(2, 71 * 5 * 4);
+        for k in 1..3 {
+            for j in 0..5 {
+                sparse[71 * (j + 5 * k)..71 * (j + 5 * k + 1)].fill(1);
+            }
+        }
+        let cases = [(small, random(8, 7 * 9 * 6)), (wide, sparse)];
+        for ((dims, spacing), mask) in cases {
+            assert_matches_brute_force(&mask, dims, spacing);
+        }
+    }
+
+    fn assert_matches_brute_force(mask: &[u8], dims: [usize; 3], spacing: [f64; 3]) {
+        let d = distance_to_outside_mm(mask, dims, spacing);
         let inside = |c: [i64; 3]| {
             (0..3).all(|a| c[a] >= 0 && c[a] < dims[a] as i64)
                 && mask[c[0] as usize + dims[0] * (c[1] as usize + dims[1] * c[2] as usize)] != 0
@@ -529,7 +663,7 @@ mod tests {
                     let got = d[i as usize + dims[0] * (j as usize + dims[1] * k as usize)];
                     assert!(
                         (got as f64 - best.sqrt()).abs() < 1e-5,
-                        "({i}, {j}, {k}): {got} against {}",
+                        "{dims:?} ({i}, {j}, {k}): {got} against {}",
                         best.sqrt()
                     );
                 }

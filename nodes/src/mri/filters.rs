@@ -307,7 +307,9 @@ pub fn distance_to_outside_mm(mask: &[u8], dims: [usize; 3], spacing_mm: [f64; 3
                 }
             }
         });
-    d2.par_iter().map(|v| v.sqrt() as f32).collect()
+    drop(tiles);
+    // In place: the f32 distances reuse the squared distances' memory.
+    d2.into_iter().map(|v| v.sqrt() as f32).collect()
 }
 
 /// Writes a tile from [`Envelope::transform_tile`] back to the rows of

@@ -14,6 +14,7 @@ pub mod mri;
 pub mod phantom;
 pub mod plot;
 pub mod register;
+mod simd;
 pub mod stereo;
 
 /// Runs `f` on a pool of `threads` workers: tests compare one thread with

@@ -8,8 +8,7 @@
 //! Volumes are `f32` (or `u8` masks) with i fastest, then j, then k, as
 //! [`fusegraph_engine::value::Grid::index`] lays them out.
 
-use crate::stereo::Isa;
-use crate::stereo::dense::simd::kernels;
+use crate::simd::{Isa, kernels};
 use rayon::prelude::*;
 
 kernels! {

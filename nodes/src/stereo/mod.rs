@@ -15,7 +15,7 @@
 //! at pixel centres, OpenCV); disparity is `x_left - x_right` in px; 3D points
 //! are in mm in the original (unrectified) left camera frame `camera_left`.
 
-pub(crate) mod dense;
+mod dense;
 pub mod features;
 mod markers;
 pub mod ops;

@@ -18,7 +18,7 @@ mod refine;
 mod select;
 mod sgm;
 mod sgm_disparity;
-pub(crate) mod simd;
+mod simd;
 mod slanted;
 mod texture;
 mod volume;

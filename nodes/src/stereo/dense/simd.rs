@@ -1,74 +1,14 @@
-//! The matchers' inner loops, compiled twice: for the baseline target (the
-//! scalar fallback, which the compiler still vectorises with SSE2) and for
-//! AVX2 + POPCNT, chosen at run time by [`Isa::detect`]. The loops are plain
-//! safe Rust over slices; only the call into the AVX2 build is `unsafe`, and
-//! only after the CPU has reported the features it needs.
+//! The matchers' inner loops, compiled twice (see [`crate::simd`]): for
+//! the baseline target (the scalar fallback, which the compiler still
+//! vectorises with SSE2) and for AVX2 + POPCNT, chosen at run time. The loops
+//! are plain safe Rust over slices.
 //!
 //! The lowest layer of the dense matchers: it imports none of them. A matcher
 //! whose loop needs its own types (semi-global matching's row pass) compiles
 //! it twice with [`kernels!`] in its own module.
 
-/// The instruction set the kernels run with.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Isa {
-    /// Baseline x86-64 / any other architecture.
-    Scalar,
-    /// x86-64 with AVX2 and POPCNT.
-    #[cfg(target_arch = "x86_64")]
-    Avx2,
-}
-
-impl Isa {
-    /// The best instruction set this CPU supports.
-    pub fn detect() -> Self {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2")
-            && std::arch::is_x86_feature_detected!("popcnt")
-        {
-            return Isa::Avx2;
-        }
-        Isa::Scalar
-    }
-}
-
-/// Defines each kernel once as an always-inlined body, a copy compiled with
-/// AVX2 + POPCNT enabled, and an `Isa` method that picks one. Usable from any
-/// dense matcher (`use super::simd::kernels;`); the method's argument types
-/// must be visible where it is invoked.
-macro_rules! kernels {
-    ($(
-        $(#[$doc:meta])*
-        fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)? $body:block
-    )*) => {
-        impl $crate::stereo::Isa {
-            $(
-                $(#[$doc])*
-                #[inline]
-                #[allow(clippy::too_many_arguments)]
-                pub(crate) fn $name(self, $($arg: $ty),*) $(-> $ret)? {
-                    #[inline(always)]
-                    #[allow(clippy::too_many_arguments)]
-                    fn generic($($arg: $ty),*) $(-> $ret)? $body
-
-                    #[cfg(target_arch = "x86_64")]
-                    #[target_feature(enable = "avx2,popcnt")]
-                    #[allow(clippy::too_many_arguments)]
-                    fn avx2($($arg: $ty),*) $(-> $ret)? { generic($($arg),*) }
-
-                    match self {
-                        #[cfg(target_arch = "x86_64")]
-                        // SAFETY: `Isa::Avx2` is only made by `Isa::detect` after the
-                        // CPU reported AVX2 and POPCNT, the only features `avx2`
-                        // is compiled with beyond the baseline; the body is safe code.
-                        $crate::stereo::Isa::Avx2 => unsafe { avx2($($arg),*) },
-                        $crate::stereo::Isa::Scalar => generic($($arg),*),
-                    }
-                }
-            )*
-        }
-    };
-}
-pub(crate) use kernels;
+pub use crate::simd::Isa;
+pub(crate) use crate::simd::kernels;
 
 kernels! {
     /// One census comparison for a whole row: shifts every pixel's byte of

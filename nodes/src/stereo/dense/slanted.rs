@@ -22,7 +22,7 @@
 //! crate refines disparities.
 
 use super::pair::GreyImage;
-use super::simd::Isa;
+use super::simd::{Isa, kernels};
 use nalgebra::{SMatrix, SVector};
 use rayon::prelude::*;
 
@@ -243,7 +243,7 @@ struct Window {
 /// `Window::shape`: the least-squares quadratic (or plane) through the map's
 /// valid samples on a `SHAPE_GRID`-square grid spanning the window, refitted
 /// once without the samples more than `OFF_SHAPE_PX` off the first fit.
-struct ShapeFit {
+pub(crate) struct ShapeFit {
     /// The samples' offsets from the window's centre, px.
     offsets: Vec<(isize, isize)>,
     /// The same in the row-major map the fit was made for.
@@ -267,6 +267,8 @@ struct ShapeFit {
     quadratic: bool,
     /// Half-window, px.
     scale: f64,
+    /// The instruction set the fits run with.
+    isa: Isa,
 }
 
 impl ShapeFit {
@@ -307,6 +309,7 @@ impl ShapeFit {
             normal_all,
             quadratic,
             scale,
+            isa: Isa::detect(),
         };
         let all = vec![true; fit.terms.len()];
         fit.solve = fit.normal_matrix(&all).try_inverse().map(|inverse| {
@@ -329,6 +332,7 @@ impl ShapeFit {
     /// whole grid, from the fit through every sample with the few left out
     /// taken away by [`ShapeFit::leave_out`] (most windows: a map's holes
     /// and the samples off its shape are few), else from scratch.
+    #[inline(always)]
     fn fit_without(&self, samples: &[f64], used: &[bool]) -> Option<SVector<f64, 6>> {
         if let Some(solve) = &self.solve {
             let mut excluded = [0usize; (SHAPE_GRID * SHAPE_GRID) as usize];
@@ -360,6 +364,7 @@ impl ShapeFit {
     /// and r the excluded samples' residuals, the refit is
     /// `all - solve[:, E] (I - H[E, E])^-1 r[E]`. `None` without `solve`,
     /// or where the samples left do not fix the shape.
+    #[inline(always)]
     fn leave_out(
         &self,
         all: &SVector<f64, 6>,
@@ -389,6 +394,7 @@ impl ShapeFit {
     }
 
     /// The normal equations' matrix over the samples `used`.
+    #[inline(always)]
     fn normal_matrix(&self, used: &[bool]) -> SMatrix<f64, 6, 6> {
         let outer = |keep: bool| {
             self.terms
@@ -415,6 +421,7 @@ impl ShapeFit {
     }
 
     /// The least-squares coefficients through the samples `used`.
+    #[inline(always)]
     fn solve_over(&self, samples: &[f64], used: &[bool]) -> Option<SVector<f64, 6>> {
         let mut b = SVector::<f64, 6>::zeros();
         for ((t, d), _) in self
@@ -433,6 +440,7 @@ impl ShapeFit {
     /// for each k, summed in the order nalgebra's `dot` sums a 6-vector
     /// (from zero, term by term), so the same bits, but for all samples at
     /// once.
+    #[inline(always)]
     fn evaluate(
         &self,
         coefficients: &SVector<f64, 6>,
@@ -447,8 +455,15 @@ impl ShapeFit {
     }
 
     /// The map's shape around (x, y); `None` with under half the samples
-    /// valid.
+    /// valid. Compiled for AVX2 too (the fits are f64 arithmetic, twice
+    /// as wide there), with the same bits.
     fn shape_at(&self, map: &MapView, x: isize, y: isize) -> Option<[f32; 5]> {
+        self.isa.shape_at_kernel(self, map, x, y)
+    }
+
+    /// [`ShapeFit::shape_at`]'s body.
+    #[inline(always)]
+    fn shape_at_inline(&self, map: &MapView, x: isize, y: isize) -> Option<[f32; 5]> {
         let mut samples = [0.0f64; (SHAPE_GRID * SHAPE_GRID) as usize];
         let mut valid = [false; (SHAPE_GRID * SHAPE_GRID) as usize];
         let reach = self.scale as isize;
@@ -503,9 +518,17 @@ impl ShapeFit {
     }
 }
 
+kernels! {
+    /// [`ShapeFit::shape_at`], for the baseline target and for AVX2.
+    fn shape_at_kernel(fit: &ShapeFit, map: &MapView, x: isize, y: isize) -> Option<[f32; 5]> {
+        fit.shape_at_inline(map, x, y)
+    }
+}
+
 /// Solves `m x = z` in place (`z` becomes x) for a symmetric positive
 /// definite `m` (row-major, `z.len()` square), by Cholesky; `None` where `m`
 /// is not positive definite (to rounding).
+#[inline(always)]
 fn solve_spd_in_place(m: &mut [f64], z: &mut [f64]) -> Option<()> {
     let k = z.len();
     // Lower factor L (m = L L^T) over m's lower triangle.
@@ -543,7 +566,7 @@ fn solve_spd_in_place(m: &mut [f64], z: &mut [f64]) -> Option<()> {
 }
 
 /// A disparity map as the shape fits read it: row-major, NaN = invalid.
-struct MapView<'a> {
+pub(crate) struct MapView<'a> {
     data: &'a [f32],
     width: usize,
     height: usize,
@@ -551,6 +574,7 @@ struct MapView<'a> {
 
 impl MapView<'_> {
     /// The valid disparity at (x, y), px.
+    #[inline(always)]
     fn at(&self, x: isize, y: isize) -> Option<f32> {
         if x < 0 || y < 0 || x >= self.width as isize || y >= self.height as isize {
             return None;
@@ -561,6 +585,7 @@ impl MapView<'_> {
 
     /// Whether every pixel within `reach` of (x, y) along both axes lies in
     /// the map.
+    #[inline(always)]
     fn holds_square(&self, x: isize, y: isize, reach: isize) -> bool {
         x >= reach
             && y >= reach
@@ -648,6 +673,44 @@ mod tests {
         assert!((z[0] - 0.5).abs() < 1e-15 && z[1].abs() < 1e-15, "{z:?}");
         let (mut m, mut z) = ([1.0, 1.0, 1.0, 1.0], [1.0, 1.0]);
         assert!(solve_spd_in_place(&mut m, &mut z).is_none());
+    }
+
+    /// The shape fits compiled for AVX2 give the baseline build's bits,
+    /// on a bumpy map with holes (so fits through every sample, a few left
+    /// out and refits from scratch all occur).
+    #[test]
+    fn shapes_have_the_same_bits_on_every_instruction_set() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(13);
+        let (w, h) = (60usize, 40usize);
+        let data: Vec<f32> = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f32, (i / w) as f32);
+                if rng.random_range(0.0..1.0) < 0.08 {
+                    f32::NAN
+                } else {
+                    30.0 + 0.2 * x - 0.1 * y + 0.01 * x * y + rng.random_range(-0.3..0.3)
+                }
+            })
+            .collect();
+        let map = MapView {
+            data: &data,
+            width: w,
+            height: h,
+        };
+        for half in [4, 10] {
+            let fit = ShapeFit::new(half, true, w);
+            let mut shapes = 0;
+            for y in 0..h as isize {
+                for x in 0..w as isize {
+                    let base = Isa::Scalar.shape_at_kernel(&fit, &map, x, y);
+                    let best = Isa::detect().shape_at_kernel(&fit, &map, x, y);
+                    let bits = |s: Option<[f32; 5]>| s.map(|v| v.map(f32::to_bits));
+                    assert_eq!(bits(base), bits(best), "({x}, {y}), half {half}");
+                    shapes += usize::from(base.is_some());
+                }
+            }
+            assert!(shapes > w * h / 2, "{shapes} shapes");
+        }
     }
 
     /// The fit evaluated at every sample at once gives the bits of each

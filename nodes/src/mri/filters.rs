@@ -68,8 +68,9 @@ fn gaussian_kernel(sigma: f64) -> Vec<f32> {
 /// borders clamped: each line of the axis is copied out and its outputs
 /// written back (along i a row, along j a slice, along k the rows of one j
 /// in every slice). Along j and k whole rows are weighted and summed
-/// (contiguous, so they vectorise, with AVX2 where the CPU has it). Each output is summed in
-/// kernel order, as [`convolve_axis_into`] sums it (the same bits).
+/// (contiguous, so they vectorise, with AVX2 where the CPU has it). Each
+/// output is summed in kernel order, as [`convolve_axis_into`] sums it (the
+/// same bits).
 fn convolve_axis_in_place(data: &mut [f32], dims: [usize; 3], axis: usize, kernel: &[f32]) {
     let [nx, ny, nz] = dims;
     let radius = kernel.len() / 2;
@@ -249,8 +250,8 @@ pub fn laplacian_into(data: &[f32], out: &mut [f32], dims: [usize; 3], spacing_m
 /// voxel's squared distance is the step to the nearest 0 along its row,
 /// squared, as the envelope would give it. Lines that are all 0 (outside),
 /// most of a scan's, stay 0 and are skipped; the rest reuse one scratch
-/// per task, and the last axis's lines are taken a tile of neighbouring
-/// columns at a time, so each slice is read in runs, not a voxel a line.
+/// per task, and the lines along j and k are taken a tile of neighbouring
+/// columns at a time, so each row is read in runs, not a voxel a line.
 pub fn distance_to_outside_mm(mask: &[u8], dims: [usize; 3], spacing_mm: [f64; 3]) -> Vec<f32> {
     let [nx, ny, nz] = dims;
     let slice_len = nx * ny;

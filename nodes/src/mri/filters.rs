@@ -257,10 +257,10 @@ pub fn distance_to_outside_mm(mask: &[u8], dims: [usize; 3], spacing_mm: [f64; 3
     let slice_len = nx * ny;
     // Neighbouring lines along j and k are transformed this many at a time.
     const TILE: usize = 64;
-    let mut d2: Vec<f64> = vec![0.0; mask.len()];
     if mask.is_empty() {
         return Vec::new();
     }
+    let mut d2: Vec<f64> = vec![0.0; mask.len()];
     // Along i: the nearest outside voxel (or the edge) on each side.
     let step2 = spacing_mm[0] * spacing_mm[0];
     d2.par_chunks_mut(nx)

@@ -104,8 +104,9 @@ fn sym_times(b: &SymBlock, x: &Vector3<f64>) -> Vector3<f64> {
 }
 
 /// A term whose rows sit at one point: its position in the finest
-/// lattice's node units and its 3 x 3 weight M (the row contributes
-/// w_a w_b M to the block between its stencil's nodes a and b).
+/// lattice's node units and its symmetric 3 x 3 weight M (the row
+/// contributes w_a w_b M to the block between its stencil's nodes a and b;
+/// the assembly reads M's upper triangle).
 #[derive(Clone)]
 pub(super) struct PointTerm {
     pub(super) at: [f64; 3],
@@ -151,6 +152,11 @@ impl BlockMatrix {
             })
         });
         for t in terms {
+            debug_assert_eq!(
+                t.weight,
+                t.weight.transpose(),
+                "a term's weight is symmetric"
+            );
             let weight = sym_entries(&t.weight);
             let stencil = trilinear_stencil(dims, t.at.map(|v| v / scale));
             for (a, &(na, wa)) in stencil.iter().enumerate() {

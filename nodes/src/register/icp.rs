@@ -213,7 +213,8 @@ pub(crate) fn correspondences(
         ));
     }
     if trim_ratio < 1.0 {
-        pairs.sort_by(|a, b| a.2.total_cmp(&b.2));
+        // Stable, as the serial sort: ties keep source order.
+        pairs.par_sort_by(|a, b| a.2.total_cmp(&b.2));
         pairs.truncate(((pairs.len() as f64 * trim_ratio).ceil() as usize).max(6));
     }
     Ok((pairs, fitness))

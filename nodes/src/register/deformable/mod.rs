@@ -375,7 +375,8 @@ fn surface_rows(
             p.max_distance_mm
         ));
     }
-    pairs.sort_by(|a, b| a.2.abs().total_cmp(&b.2.abs()));
+    // Stable, as the serial sort: ties keep the order seen now.
+    pairs.par_sort_by(|a, b| a.2.abs().total_cmp(&b.2.abs()));
     pairs.truncate(((pairs.len() as f64 * p.trim_ratio).ceil() as usize).max(1));
     let rms = (pairs.iter().map(|x| x.2 * x.2).sum::<f64>() / pairs.len() as f64).sqrt();
     let weight = 1.0 / pairs.len() as f64;

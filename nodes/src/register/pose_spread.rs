@@ -140,8 +140,8 @@ pub fn pose_spread(
         _ => None,
     };
     let rotation = transform.rotation.to_rotation_matrix();
-    let mut terms: Vec<Term> = Vec::with_capacity(pairs.len());
-    for &(i, j, distance) in &pairs {
+    // Each pair's terms (in parallel, kept in pair order).
+    let pair_terms = |&(i, j, distance): &(usize, usize, f64)| -> Result<Vec<Term>, String> {
         let q = target[j];
         // Each term's direction and weight, with None to weigh the residual
         // along it by the kernel (GICP weighs the pair by its distance).
@@ -171,18 +171,28 @@ pub fn pose_spread(
                 .map(|e| (e, None))
                 .to_vec(),
         };
-        for (e, weight) in directions {
-            let residual = e.dot(&(moved[i] - q));
-            terms.push(Term {
-                origin: Origin::Surface(i),
-                moved: moved[i],
-                anchor: q,
-                direction: e,
-                residual,
-                weight: weight.unwrap_or_else(|| p.kernel.weight(residual)),
-            });
-        }
-    }
+        Ok(directions
+            .into_iter()
+            .map(|(e, weight)| {
+                let residual = e.dot(&(moved[i] - q));
+                Term {
+                    origin: Origin::Surface(i),
+                    moved: moved[i],
+                    anchor: q,
+                    direction: e,
+                    residual,
+                    weight: weight.unwrap_or_else(|| p.kernel.weight(residual)),
+                }
+            })
+            .collect())
+    };
+    let mut terms: Vec<Term> = pairs
+        .par_iter()
+        .map(pair_terms)
+        .collect::<Result<Vec<Vec<Term>>, String>>()?
+        .into_iter()
+        .flatten()
+        .collect();
     let surface_weight: f64 = terms.iter().map(|t| t.weight).sum();
     if let Some(a) = anchors.filter(|a| !a.source.is_empty() && a.weight > 0.0) {
         let each = a.each(surface_weight);
@@ -218,12 +228,19 @@ pub fn pose_spread(
     for t in &mut terms {
         t.residual += t.row().dot(&step);
     }
-    let (noise, blocks) = noise_covariance(&terms, &h_inverse, block_mm);
-    let (independent, _) = noise_covariance(&terms, &h_inverse, 0.0);
-    let shift_responses = match shifts {
-        Some(f) => shift_responses(&terms, &src, anchors, transform, f)?,
-        None => Vec::new(),
-    };
+    let ((noise, blocks), ((independent, _), shift_responses)) = rayon::join(
+        || noise_covariance(&terms, &h_inverse, block_mm),
+        || {
+            rayon::join(
+                || noise_covariance(&terms, &h_inverse, 0.0),
+                || match shifts {
+                    Some(f) => shift_responses(&terms, &src, anchors, transform, f),
+                    None => Ok(Vec::new()),
+                },
+            )
+        },
+    );
+    let shift_responses = shift_responses?;
     let shift = shift_responses
         .iter()
         .fold(Matrix6::zeros(), |c, r| c + r * r.transpose());
@@ -245,6 +262,9 @@ fn normal_matrix<'a>(terms: impl Iterator<Item = (&'a Term, f64)>) -> Matrix6<f6
         h + row * row.transpose() * (t.weight * scale)
     })
 }
+
+/// Cluster scores computed side by side before they are summed in order.
+const SCORE_BATCH: usize = 4096;
 
 /// The cluster-robust covariance H^-1 (sum_b g_b g_b^T) H^-1 over blocks
 /// of `block_mm` (0: each term its own block; each landmark is always one
@@ -290,12 +310,20 @@ fn noise_covariance(
     // Blocks in a fixed order: the same bits however the map iterates.
     let mut keys: Vec<_> = clusters.keys().copied().collect();
     keys.sort_unstable();
-    let meat = keys
-        .iter()
-        .fold(Matrix6::zeros(), |m, k| m + score(&clusters[k]));
-    let meat = singles
-        .iter()
-        .fold(meat, |m, t| m + score(std::slice::from_ref(t)));
+    // The scores in parallel, summed in that order (the same bits as one
+    // thread), a bounded batch at a time.
+    let mut meat = Matrix6::zeros();
+    for batch in keys.chunks(SCORE_BATCH) {
+        let scores: Vec<Matrix6<f64>> = batch.par_iter().map(|k| score(&clusters[k])).collect();
+        meat = scores.iter().fold(meat, |m, s| m + s);
+    }
+    for batch in singles.chunks(SCORE_BATCH) {
+        let scores: Vec<Matrix6<f64>> = batch
+            .par_iter()
+            .map(|t| score(std::slice::from_ref(t)))
+            .collect();
+        meat = scores.iter().fold(meat, |m, s| m + s);
+    }
     (h_inverse * meat * h_inverse, clusters.len() + singles.len())
 }
 

@@ -381,10 +381,10 @@ fn surface_rows(
     let rms = (pairs.iter().map(|x| x.2 * x.2).sum::<f64>() / pairs.len() as f64).sqrt();
     let weight = 1.0 / pairs.len() as f64;
     let mut paired: Vec<usize> = pairs.iter().map(|x| x.0).collect();
-    paired.sort_unstable();
+    paired.par_sort_unstable();
     paired.dedup();
     let rows = pairs
-        .into_iter()
+        .into_par_iter()
         .map(|(j, target, _)| SurfaceRow {
             stencil: field.stencil(&scan[j]),
             normal: normals[j],

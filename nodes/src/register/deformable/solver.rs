@@ -4,6 +4,7 @@
 
 use super::multigrid::{Multigrid, PointTerm, Regularisers, term_at};
 use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
 /// One data row: a scan point's stencil, the direction it is measured
 /// along, its target and its weight.
 #[derive(Clone)]
@@ -51,21 +52,25 @@ impl System<'_> {
     /// Every data row as a term at its point: its stencil's position and
     /// its 3 x 3 weight.
     fn terms(&self) -> Vec<PointTerm> {
-        let surface = self.surface.iter().map(|r| {
-            term_at(
-                self.dims,
-                &r.stencil,
-                r.normal * r.normal.transpose() * r.weight,
-            )
-        });
-        let landmarks = self.landmarks.iter().map(|r| {
+        let mut terms: Vec<PointTerm> = self
+            .surface
+            .par_iter()
+            .map(|r| {
+                term_at(
+                    self.dims,
+                    &r.stencil,
+                    r.normal * r.normal.transpose() * r.weight,
+                )
+            })
+            .collect();
+        terms.extend(self.landmarks.iter().map(|r| {
             term_at(
                 self.dims,
                 &r.stencil,
                 r.across * r.across * self.landmark_weight,
             )
-        });
-        surface.chain(landmarks).collect()
+        }));
+        terms
     }
 
     /// A^T W b.

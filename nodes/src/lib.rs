@@ -11,6 +11,7 @@ pub mod eval;
 pub mod io;
 pub mod math;
 pub mod mri;
+mod numeric;
 pub mod phantom;
 pub mod plot;
 pub mod register;

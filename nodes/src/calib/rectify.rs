@@ -5,6 +5,7 @@
 //! (1). And remapping an image through it, with bilinear interpolation.
 
 use crate::camera::CameraModel;
+use crate::numeric::floor_usize;
 use nalgebra::{Isometry3, Matrix3, Matrix3x4, Matrix4, Point2, Rotation3, Vector3};
 use rayon::prelude::*;
 
@@ -190,7 +191,7 @@ pub fn remap(
                 if p.x < 0.0 || p.y < 0.0 || p.x > (sw - 1) as f64 || p.y > (sh - 1) as f64 {
                     continue;
                 }
-                let (x0, y0) = (p.x.floor() as usize, p.y.floor() as usize);
+                let (x0, y0) = (floor_usize(p.x), floor_usize(p.y));
                 let (x1, y1) = ((x0 + 1).min(sw - 1), (y0 + 1).min(sh - 1));
                 let (tx, ty) = (p.x - x0 as f64, p.y - y0 as f64);
                 for c in 0..channels {

@@ -1,5 +1,6 @@
 //! Voxel-grid downsampling.
 
+use crate::numeric::floor_i64;
 use nalgebra::{Point3, Vector3};
 use std::collections::HashMap;
 
@@ -31,7 +32,7 @@ pub fn voxel_downsample(points: &[Point3<f64>], voxel_mm: f64) -> Vec<Point3<f64
     let mut cells: HashMap<[i64; 3], usize> = HashMap::new();
     let mut sums: Vec<(Vector3<f64>, usize)> = Vec::new();
     for p in points {
-        let key = [p.x, p.y, p.z].map(|c| (c / voxel_mm).floor() as i64);
+        let key = [p.x, p.y, p.z].map(|c| floor_i64(c / voxel_mm));
         let slot = *cells.entry(key).or_insert_with(|| {
             sums.push((Vector3::zeros(), 0));
             sums.len() - 1

@@ -6,6 +6,7 @@
 //! Written here: it is a per-slice in-plane shift, a few lines, and no crate
 //! of the field does it on our grid type.
 
+use crate::numeric::floor_usize;
 use fusegraph_engine::value::Grid;
 
 /// How a grid's slice axis leans off its slices' normal.
@@ -117,7 +118,7 @@ pub fn bilinear(slice: &[f32], w: usize, h: usize, x: f64, y: f64) -> Option<f32
         return None;
     }
     let (x, y) = (x.clamp(0.0, (w - 1) as f64), y.clamp(0.0, (h - 1) as f64));
-    let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+    let (x0, y0) = (floor_usize(x), floor_usize(y));
     let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
     let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
     let at = |i: usize, j: usize| slice[i + w * j];

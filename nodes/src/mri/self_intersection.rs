@@ -8,6 +8,7 @@
 //! `get_self_intersecting_triangles` does.
 
 use super::TriangleMesh;
+use crate::numeric::floor_i64;
 use std::collections::HashMap;
 
 type P = [f64; 3];
@@ -159,7 +160,7 @@ pub fn self_intersections(mesh: &TriangleMesh, clearance_mm: f64) -> Vec<[u32; 2
         .iter()
         .flat_map(|(lo, hi)| (0..3).map(move |x| hi[x] - lo[x]))
         .fold(f64::MIN_POSITIVE, f64::max);
-    let cell_of = |v: f64| (v / cell).floor() as i64;
+    let cell_of = |v: f64| floor_i64(v / cell);
     let mut cells: HashMap<[i64; 3], Vec<u32>> = HashMap::new();
     for (i, (lo, hi)) in boxes.iter().enumerate() {
         for cx in cell_of(lo[0])..=cell_of(hi[0]) {

@@ -11,6 +11,7 @@
 use super::defocus::{Lens, defocus, gaussian_blur};
 use super::sensor::{SensorParams, expose};
 use crate::camera::CameraModel;
+use crate::numeric::floor_usize;
 use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 
@@ -156,7 +157,7 @@ impl RayMap {
 
     fn direction(&self, u: f64, v: f64) -> Vector3<f64> {
         let (gx, gy) = (u / self.step + 1.0, v / self.step + 1.0);
-        let (c, r) = (gx.floor() as usize, gy.floor() as usize);
+        let (c, r) = (floor_usize(gx), floor_usize(gy));
         let (tx, ty) = (gx - c as f64, gy - r as f64);
         let at = |c: usize, r: usize| self.xy[c + r * self.cols];
         let lerp =

@@ -8,7 +8,8 @@ use super::moved_shape::MovedShape;
 use super::props::{Prop, first_prop};
 use super::render::{Scene, Seen};
 use super::shape::Surface;
-use super::texture::{ValueNoise, fast_floor};
+use super::texture::ValueNoise;
+use crate::numeric::floor_i64;
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use std::cell::Cell;
 
@@ -54,7 +55,7 @@ impl Chessboard {
         if x < x0 || y < y0 || x > x1 || y > y1 {
             return None;
         }
-        let (ix, iy) = (fast_floor(x / s), fast_floor(y / s));
+        let (ix, iy) = (floor_i64(x / s), floor_i64(y / s));
         let in_squares = ix >= -1 && iy >= -1 && ix < self.cols as i64 && iy < self.rows as i64;
         let black = in_squares && (ix + iy).rem_euclid(2) == 0;
         Some(if black { 0.07 } else { 0.82 })
@@ -155,7 +156,7 @@ impl Scene for ChessboardScene {
         let [x0, y0, x1, y1] = self.board.extent();
         let cuts = |axis: usize, edges: [f64; 2]| -> Vec<f64> {
             let (lo, hi) = quad.range(axis);
-            let mut cuts: Vec<f64> = (fast_floor(lo / s) + 1..=fast_floor(hi / s))
+            let mut cuts: Vec<f64> = (floor_i64(lo / s) + 1..=floor_i64(hi / s))
                 .map(|k| k as f64 * s)
                 .collect();
             cuts.extend(edges.into_iter().filter(|&e| e > lo && e < hi));

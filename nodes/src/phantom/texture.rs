@@ -2,21 +2,15 @@
 //! skin's fine random texture (what dense stereo matches on), the table cloth and
 //! the clutter behind the calibration board.
 
+use crate::numeric::floor_i64;
 use nalgebra::Point3;
-
-/// `x.floor()` as an integer. `f64::floor` is a library call on baseline x86-64
-/// and shows in render profiles; this is exact for |x| < 2^52.
-pub fn fast_floor(x: f64) -> i64 {
-    let i = x as i64;
-    if (i as f64) > x { i - 1 } else { i }
-}
 
 /// The lattice cell holding `p` (mm) at lattice spacing `1 / frequency` mm:
 /// its lowest corner, and `p`'s position in it along each axis eased by
 /// smoothstep (0..1).
 fn cell(p: &Point3<f64>, frequency: f64) -> ([i64; 3], [f64; 3]) {
     let q = p.coords * frequency;
-    let (ix, iy, iz) = (fast_floor(q.x), fast_floor(q.y), fast_floor(q.z));
+    let (ix, iy, iz) = (floor_i64(q.x), floor_i64(q.y), floor_i64(q.z));
     let smooth = |t: f64| t * t * (3.0 - 2.0 * t);
     (
         [ix, iy, iz],

@@ -26,6 +26,7 @@
 use super::gicp::{GicpSurfaces, pair_information};
 use super::icp::{Anchors, IcpMethod, IcpParams, correspondences};
 use crate::cloud::Nearest;
+use crate::numeric::floor_i64;
 use nalgebra::{Isometry3, Matrix6, Point3, Vector3, Vector6};
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -297,12 +298,7 @@ fn noise_covariance(
             }
             Origin::Surface(_) => {
                 let c = t.anchor.coords / block_mm;
-                (
-                    0,
-                    c.x.floor() as i64,
-                    c.y.floor() as i64,
-                    c.z.floor() as i64,
-                )
+                (0, floor_i64(c.x), floor_i64(c.y), floor_i64(c.z))
             }
         };
         clusters.entry(key).or_default().push(t);

@@ -1,6 +1,7 @@
 //! The displacement field's lattice: trilinear between nodes, and its
 //! table form (one row per node) for passing between ops.
 
+use crate::numeric::floor_usize;
 use nalgebra::{Point3, Vector3};
 
 /// The columns of a field as a table: each node's position and its
@@ -177,7 +178,7 @@ pub(super) fn runs(dims: [usize; 3], length: usize) -> Vec<Vec<usize>> {
 pub(super) fn trilinear_stencil(dims: [usize; 3], at: [f64; 3]) -> [(usize, f64); 8] {
     let cell: [(usize, f64); 3] = std::array::from_fn(|a| {
         let f = at[a].clamp(0.0, (dims[a] - 1) as f64);
-        let i = (f.floor() as usize).min(dims[a] - 2);
+        let i = floor_usize(f).min(dims[a] - 2);
         (i, f - i as f64)
     });
     std::array::from_fn(|c| {

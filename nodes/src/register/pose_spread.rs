@@ -141,40 +141,39 @@ pub fn pose_spread(
         _ => None,
     };
     let rotation = transform.rotation.to_rotation_matrix();
-    // Each pair's terms (in parallel, kept in pair order).
-    let pair_terms = |&(i, j, distance): &(usize, usize, f64)| -> Result<Vec<Term>, String> {
-        let q = target[j];
-        // Each term's direction and weight, with None to weigh the residual
-        // along it by the kernel (GICP weighs the pair by its distance).
-        let directions: Vec<(Vector3<f64>, Option<f64>)> = match (&gicp, target_normals) {
-            (Some((surfaces, source_covariances)), _) => {
-                // The pair's information split along its eigenvectors: the
-                // terms' rows then sum to J^T W J, as the fit's.
-                let info = pair_information(
-                    surfaces.target_covariance(j),
-                    &source_covariances[i],
-                    &rotation,
-                )
-                .ok_or("a pair's covariances are singular")?;
-                let eig = info.symmetric_eigen();
-                let w = p.kernel.weight(distance);
-                (0..3)
-                    .map(|k| {
-                        (
-                            eig.eigenvectors.column(k).into(),
-                            Some(w * eig.eigenvalues[k]),
-                        )
-                    })
-                    .collect()
-            }
-            (None, Some(n)) if p.method == IcpMethod::PointToPlane => vec![(n[j], None)],
-            _ => [Vector3::x(), Vector3::y(), Vector3::z()]
-                .map(|e| (e, None))
-                .to_vec(),
-        };
-        Ok(directions
-            .into_iter()
-            .map(|(e, weight)| {
+    // Each pair's terms, appended to `out`.
+    let pair_terms =
+        |&(i, j, distance): &(usize, usize, f64), out: &mut Vec<Term>| -> Result<(), String> {
+            let q = target[j];
+            // Each term's direction and weight, with None to weigh the residual
+            // along it by the kernel (GICP weighs the pair by its distance).
+            let directions: Vec<(Vector3<f64>, Option<f64>)> = match (&gicp, target_normals) {
+                (Some((surfaces, source_covariances)), _) => {
+                    // The pair's information split along its eigenvectors: the
+                    // terms' rows then sum to J^T W J, as the fit's.
+                    let info = pair_information(
+                        surfaces.target_covariance(j),
+                        &source_covariances[i],
+                        &rotation,
+                    )
+                    .ok_or("a pair's covariances are singular")?;
+                    let eig = info.symmetric_eigen();
+                    let w = p.kernel.weight(distance);
+                    (0..3)
+                        .map(|k| {
+                            (
+                                eig.eigenvectors.column(k).into(),
+                                Some(w * eig.eigenvalues[k]),
+                            )
+                        })
+                        .collect()
+                }
+                (None, Some(n)) if p.method == IcpMethod::PointToPlane => vec![(n[j], None)],
+                _ => [Vector3::x(), Vector3::y(), Vector3::z()]
+                    .map(|e| (e, None))
+                    .to_vec(),
+            };
+            out.extend(directions.into_iter().map(|(e, weight)| {
                 let residual = e.dot(&(moved[i] - q));
                 Term {
                     origin: Origin::Surface(i),
@@ -184,16 +183,27 @@ pub fn pose_spread(
                     residual,
                     weight: weight.unwrap_or_else(|| p.kernel.weight(residual)),
                 }
+            }));
+            Ok(())
+        };
+    // In parallel by chunks, appended in pair order, a bounded batch at a
+    // time (no second copy of all the terms at once).
+    let mut terms: Vec<Term> = Vec::with_capacity(pairs.len());
+    for batch in pairs.chunks(TERM_BATCH) {
+        let parts: Vec<Result<Vec<Term>, String>> = batch
+            .par_chunks(TERM_CHUNK)
+            .map(|chunk| {
+                let mut out = Vec::with_capacity(chunk.len());
+                for pair in chunk {
+                    pair_terms(pair, &mut out)?;
+                }
+                Ok(out)
             })
-            .collect())
-    };
-    let mut terms: Vec<Term> = pairs
-        .par_iter()
-        .map(pair_terms)
-        .collect::<Result<Vec<Vec<Term>>, String>>()?
-        .into_iter()
-        .flatten()
-        .collect();
+            .collect();
+        for part in parts {
+            terms.extend(part?);
+        }
+    }
     let surface_weight: f64 = terms.iter().map(|t| t.weight).sum();
     if let Some(a) = anchors.filter(|a| !a.source.is_empty() && a.weight > 0.0) {
         let each = a.each(surface_weight);
@@ -263,6 +273,11 @@ fn normal_matrix<'a>(terms: impl Iterator<Item = (&'a Term, f64)>) -> Matrix6<f6
         h + row * row.transpose() * (t.weight * scale)
     })
 }
+
+/// Pairs whose terms are made side by side (in chunks of [`TERM_CHUNK`])
+/// before they are appended in order.
+const TERM_BATCH: usize = 16384;
+const TERM_CHUNK: usize = 1024;
 
 /// Cluster scores computed side by side before they are summed in order.
 const SCORE_BATCH: usize = 4096;

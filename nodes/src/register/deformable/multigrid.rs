@@ -695,16 +695,21 @@ mod tests {
         }
     }
 
-    #[test]
-    fn a_forward_sweep_from_zero_reads_only_the_earlier_columns_to_the_same_values() {
-        let mut rng = ChaCha8Rng::seed_from_u64(12);
-        let dims = [7, 6, 5];
-        let terms = random_terms(&mut rng, dims, 200);
+    /// The finest matrix of `count` random terms on a lattice of `dims`,
+    /// with both regularisers.
+    fn random_matrix(rng: &mut ChaCha8Rng, dims: [usize; 3], count: usize) -> BlockMatrix {
+        let terms = random_terms(rng, dims, count);
         let regularisers = Regularisers {
             edge: 1e-3,
             bend: 0.2,
         };
-        let a = BlockMatrix::assemble(dims, 1.0, &terms, regularisers);
+        BlockMatrix::assemble(dims, 1.0, &terms, regularisers)
+    }
+
+    #[test]
+    fn a_forward_sweep_from_zero_reads_only_the_earlier_columns_to_the_same_values() {
+        let mut rng = ChaCha8Rng::seed_from_u64(12);
+        let a = random_matrix(&mut rng, [7, 6, 5], 200);
         let r = random_vectors(&mut rng, a.nodes());
         let mut full = vec![Vector3::zeros(); a.nodes()];
         a.sweep(&r, &mut full, false);
@@ -715,13 +720,7 @@ mod tests {
     #[test]
     fn a_backward_sweep_with_its_earlier_columns_first_has_the_serial_sweeps_bits() {
         let mut rng = ChaCha8Rng::seed_from_u64(13);
-        let dims = [9, 7, 6];
-        let terms = random_terms(&mut rng, dims, 300);
-        let regularisers = Regularisers {
-            edge: 1e-3,
-            bend: 0.2,
-        };
-        let a = BlockMatrix::assemble(dims, 1.0, &terms, regularisers);
+        let a = random_matrix(&mut rng, [9, 7, 6], 300);
         let r = random_vectors(&mut rng, a.nodes());
         let start = random_vectors(&mut rng, a.nodes());
         let (mut serial, mut split) = (start.clone(), start);

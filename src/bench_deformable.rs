@@ -62,9 +62,13 @@ pub fn run(points: usize, sag_mm: f64, repeat: usize) -> anyhow::Result<()> {
     let worst = errors.iter().copied().fold(0.0, f64::max);
     println!(
         "  {best:.1} ms; lattice {:?} nodes, at most {} solver iterations a step; skin residual \
-         {:.3} -> {:.3} mm; inside (5 points 15-40 mm deep) error mean {mean:.3} mm, worst \
+         {:.3} -> {:.3} mm; inside ({} points 15-40 mm deep) error mean {mean:.3} mm, worst \
          {worst:.3} mm",
-        d.field.dims, d.solver_iterations, d.rigid_residual_mm, d.residual_mm
+        d.field.dims,
+        d.solver_iterations,
+        d.rigid_residual_mm,
+        d.residual_mm,
+        errors.len()
     );
     Ok(())
 }

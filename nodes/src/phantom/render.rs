@@ -50,6 +50,25 @@ pub trait Scene: Sync {
         }
     }
 
+    /// [`Scene::seen`] for the rays from one `origin` along each of
+    /// `dirs` (a row of pixels): what each sees into `rgb`, and its
+    /// distance and smooth surface into `hits`. A scene may override it
+    /// to do once what depends on the origin alone; the answers must be
+    /// [`Scene::seen`]'s.
+    fn seen_all(
+        &self,
+        origin: &Point3<f64>,
+        dirs: &[Vector3<f64>],
+        rgb: &mut [[f32; 3]],
+        hits: &mut [(f64, Option<u32>)],
+    ) {
+        for ((dir, rgb), hit) in dirs.iter().zip(rgb).zip(hits) {
+            let look = self.seen(origin, dir);
+            *rgb = look.rgb;
+            *hit = (look.distance_mm, look.smooth_surface);
+        }
+    }
+
     /// The mean radiance over a pixel's footprint where the scene can
     /// integrate it exactly (a planar pattern): `corners` are the unit rays
     /// through the pixel's four corners, in order around it, and `centre`
@@ -233,14 +252,15 @@ fn render_with(
         .zip(seen.par_chunks_mut(w))
         .enumerate()
         .for_each(|(y, (row, seen_row))| {
-            for (x, (px, s)) in row.iter_mut().zip(seen_row.iter_mut()).enumerate() {
-                let dir = rotation * centres[x + y * w];
-                if n > 1 || p.lens.is_some() {
-                    let look = scene.seen(&origin, &dir);
-                    *px = look.rgb;
-                    *s = (look.distance_mm, look.smooth_surface);
-                } else {
-                    *px = scene.radiance(&origin, &dir);
+            let dirs: Vec<Vector3<f64>> = centres[y * w..(y + 1) * w]
+                .iter()
+                .map(|centre| rotation * centre)
+                .collect();
+            if n > 1 || p.lens.is_some() {
+                scene.seen_all(&origin, &dirs, row, seen_row);
+            } else {
+                for (px, dir) in row.iter_mut().zip(&dirs) {
+                    *px = scene.radiance(&origin, dir);
                 }
             }
         });
@@ -274,27 +294,27 @@ fn render_with(
         };
         // A pixel differing from a neighbour by more than 0.02 in a channel
         // is sampled again, a row at a time: each of the nine neighbours is
-        // a shifted row, compared in a loop that vectorises.
+        // a shifted row, compared channel by channel as flat rows of
+        // floats (a loop that vectorises), then the channels joined.
         let mut samples = vec![PixelSamples::Centre; w * h];
         samples.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-            let own = &centre[y * w..(y + 1) * w];
-            let mut differs = vec![false; w];
+            let own = centre[y * w..(y + 1) * w].as_flattened();
+            let mut channel_differs = vec![false; 3 * w];
             for yy in y.saturating_sub(1)..(y + 2).min(h) {
-                let other = &centre[yy * w..(yy + 1) * w];
+                let other = centre[yy * w..(yy + 1) * w].as_flattened();
                 // Pixel x against x - 1, x and x + 1 of that row.
-                for (mine, theirs) in [(1..w, 0..w - 1), (0..w, 0..w), (0..w - 1, 1..w)] {
-                    for ((d, a), b) in differs[mine.clone()]
+                for (mine, theirs) in [(3..3 * w, 0..3 * w - 3), (0..3 * w, 0..3 * w), (0..3 * w - 3, 3..3 * w)] {
+                    for ((d, a), b) in channel_differs[mine.clone()]
                         .iter_mut()
                         .zip(&own[mine])
                         .zip(&other[theirs])
                     {
-                        *d |= ((a[0] - b[0]).abs() > 0.02)
-                            | ((a[1] - b[1]).abs() > 0.02)
-                            | ((a[2] - b[2]).abs() > 0.02);
+                        *d |= (a - b).abs() > 0.02;
                     }
                 }
             }
-            for (x, sample) in row.iter_mut().enumerate().filter(|(x, _)| differs[*x]) {
+            let differs = |x: usize| channel_differs[3 * x..3 * x + 3].contains(&true);
+            for (x, sample) in row.iter_mut().enumerate().filter(|(x, _)| differs(*x)) {
                 *sample = match near(x, y) {
                     None => PixelSamples::Edge,
                     Some((surface, span)) => PixelSamples::Texture(surface, span),

@@ -105,12 +105,38 @@ impl ChessboardScene {
         dir: &Vector3<f64>,
     ) -> Option<(Vector3<f64>, f64)> {
         let (r, t) = &self.world_to_board;
-        let (o, d) = (r * origin.coords + t, r * dir);
+        self.meet_board_plane(&(r * origin.coords + t), dir)
+    }
+
+    /// [`ChessboardScene::on_board_plane`] from the origin in board
+    /// coordinates, `board_origin` (the ray's direction in the world frame).
+    fn meet_board_plane(
+        &self,
+        board_origin: &Vector3<f64>,
+        dir: &Vector3<f64>,
+    ) -> Option<(Vector3<f64>, f64)> {
+        let d = self.world_to_board.0 * dir;
         if d.z.abs() <= 1e-12 {
             return None;
         }
-        let t = -o.z / d.z;
-        (t > 0.0).then(|| (o + d * t, t))
+        let t = -board_origin.z / d.z;
+        (t > 0.0).then(|| (board_origin + d * t, t))
+    }
+
+    /// What the ray from `origin` along `dir` sees, its origin given in
+    /// board coordinates too (`board_origin`): the board, or the wall.
+    fn board_or_wall(
+        &self,
+        origin: &Point3<f64>,
+        board_origin: &Vector3<f64>,
+        dir: &Vector3<f64>,
+    ) -> ([f32; 3], f64) {
+        if let Some((p, t)) = self.meet_board_plane(board_origin, dir)
+            && let Some(a) = self.board.albedo(p.x, p.y)
+        {
+            return (self.board_rgb(a, p.x), t);
+        }
+        self.wall(origin, dir)
     }
 
     /// The wall 1.6 m away, with blotchy clutter, along the ray.
@@ -125,12 +151,25 @@ impl ChessboardScene {
 
 impl Scene for ChessboardScene {
     fn radiance_at(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> ([f32; 3], f64) {
-        if let Some((p, t)) = self.on_board_plane(origin, dir)
-            && let Some(a) = self.board.albedo(p.x, p.y)
-        {
-            return (self.board_rgb(a, p.x), t);
+        let (r, t) = &self.world_to_board;
+        self.board_or_wall(origin, &(r * origin.coords + t), dir)
+    }
+
+    /// The origin goes to board coordinates once for all the rays.
+    fn seen_all(
+        &self,
+        origin: &Point3<f64>,
+        dirs: &[Vector3<f64>],
+        rgb: &mut [[f32; 3]],
+        hits: &mut [(f64, Option<u32>)],
+    ) {
+        let (r, t) = &self.world_to_board;
+        let board_origin = r * origin.coords + t;
+        for ((dir, rgb), hit) in dirs.iter().zip(rgb).zip(hits) {
+            let (seen, distance_mm) = self.board_or_wall(origin, &board_origin, dir);
+            *rgb = seen;
+            *hit = (distance_mm, None);
         }
-        self.wall(origin, dir)
     }
 
     /// The pixel's footprint on the board's plane, cut along the squares'

@@ -138,16 +138,16 @@ pub enum TextureSamples {
     Quincunx,
 }
 
-/// How the second pass samples a pixel.
-#[derive(Clone, Copy)]
+/// How the second pass samples a pixel (a byte a pixel: the surface and
+/// span of a texture pixel are found again from its neighbours' hits).
+#[derive(Clone, Copy, PartialEq, Eq)]
 enum PixelSamples {
     /// Its centre's sample stands (it differs from no neighbour).
     Centre,
     /// The full grid: an edge may cross it.
     Edge,
-    /// Texture alone on the smooth surface its neighbours all met, at
-    /// distances within the span (mm).
-    Texture(u32, (f64, f64)),
+    /// Texture alone on the smooth surface its neighbours all met.
+    Texture,
 }
 
 /// Normalised ray coordinates on a coarse pixel grid, bilinearly interpolated:
@@ -196,6 +196,9 @@ pub struct Renderer<'a> {
     /// `rays.direction(x, y)` at every pixel centre, row-major (camera frame):
     /// the same bits, computed once per camera instead of once per image.
     centres: Vec<Vector3<f64>>,
+    /// `rays.direction(cx - 1/2, cy - 1/2)` at every pixel corner, (width +
+    /// 1) x (height + 1), row-major (camera frame), likewise.
+    corners: Vec<Vector3<f64>>,
 }
 
 impl<'a> Renderer<'a> {
@@ -208,10 +211,15 @@ impl<'a> Renderer<'a> {
             .into_par_iter()
             .map(|i| rays.direction((i % w) as f64, (i / w) as f64))
             .collect();
+        let corners = (0..(w + 1) * (camera.height + 1))
+            .into_par_iter()
+            .map(|i| rays.direction((i % (w + 1)) as f64 - 0.5, (i / (w + 1)) as f64 - 0.5))
+            .collect();
         Renderer {
             camera,
             rays,
             centres,
+            corners,
         }
     }
 
@@ -232,6 +240,7 @@ fn render_with(
         camera,
         rays,
         centres,
+        corners: corner_rays,
     }: &Renderer,
     camera_to_world: &Isometry3<f64>,
     scene: &dyn Scene,
@@ -299,25 +308,29 @@ fn render_with(
         let mut samples = vec![PixelSamples::Centre; w * h];
         samples.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
             let own = centre[y * w..(y + 1) * w].as_flattened();
-            let mut channel_differs = vec![false; 3 * w];
+            // The largest difference from a neighbour, channel by channel
+            // (NaN is never larger, as it is never over the threshold).
+            let mut largest = vec![0.0f32; 3 * w];
             for yy in y.saturating_sub(1)..(y + 2).min(h) {
                 let other = centre[yy * w..(yy + 1) * w].as_flattened();
                 // Pixel x against x - 1, x and x + 1 of that row.
-                for (mine, theirs) in [(3..3 * w, 0..3 * w - 3), (0..3 * w, 0..3 * w), (0..3 * w - 3, 3..3 * w)] {
-                    for ((d, a), b) in channel_differs[mine.clone()]
-                        .iter_mut()
-                        .zip(&own[mine])
-                        .zip(&other[theirs])
-                    {
-                        *d |= (a - b).abs() > 0.02;
+                for (mine, theirs) in [(3, 0), (0, 0), (0, 3)] {
+                    let n = 3 * w - mine.max(theirs);
+                    let (largest, a, b) = (
+                        &mut largest[mine..mine + n],
+                        &own[mine..mine + n],
+                        &other[theirs..theirs + n],
+                    );
+                    for i in 0..n {
+                        largest[i] = largest[i].max((a[i] - b[i]).abs());
                     }
                 }
             }
-            let differs = |x: usize| channel_differs[3 * x..3 * x + 3].contains(&true);
+            let differs = |x: usize| largest[3 * x..3 * x + 3].iter().any(|&d| d > 0.02);
             for (x, sample) in row.iter_mut().enumerate().filter(|(x, _)| differs(*x)) {
                 *sample = match near(x, y) {
                     None => PixelSamples::Edge,
-                    Some((surface, span)) => PixelSamples::Texture(surface, span),
+                    Some(_) => PixelSamples::Texture,
                 };
             }
         });
@@ -336,18 +349,15 @@ fn render_with(
                 .into_par_iter()
                 .map(|i| {
                     let (cx, cy) = (i % (w + 1), i / (w + 1));
-                    let samples = &samples;
                     let around = (cy.saturating_sub(1)..(cy + 1).min(h)).flat_map(|y| {
-                        (cx.saturating_sub(1)..(cx + 1).min(w)).map(move |x| samples[x + y * w])
+                        (cx.saturating_sub(1)..(cx + 1).min(w)).map(move |x| (x, y))
                     });
                     around
-                        .filter_map(|s| match s {
-                            PixelSamples::Texture(surface, span) => Some((surface, span)),
-                            _ => None,
-                        })
-                        .next()
-                        .map_or([0.0; 3], |near| {
-                            look(cx as f64 - 0.5, cy as f64 - 0.5, Some(near))
+                        .filter(|&(x, y)| samples[x + y * w] == PixelSamples::Texture)
+                        .find_map(|(x, y)| near(x, y))
+                        .map_or([0.0; 3], |(surface, span)| {
+                            let dir = rotation * corner_rays[i];
+                            scene.radiance_near(&origin, &dir, surface, span)
                         })
                 })
                 .collect()
@@ -359,14 +369,12 @@ fn render_with(
                 let (grid, near) = match samples[x + y * w] {
                     PixelSamples::Centre => continue,
                     PixelSamples::Edge => {
-                        let corner = |dx: f64, dy: f64| {
-                            rotation * rays.direction(x as f64 + dx, y as f64 + dy)
-                        };
+                        let corner = |cx: usize, cy: usize| rotation * corner_rays[cx + cy * (w + 1)];
                         let corners = [
-                            corner(-0.5, -0.5),
-                            corner(0.5, -0.5),
-                            corner(0.5, 0.5),
-                            corner(-0.5, 0.5),
+                            corner(x, y),
+                            corner(x + 1, y),
+                            corner(x + 1, y + 1),
+                            corner(x, y + 1),
                         ];
                         let centre = rotation * centres[x + y * w];
                         if let Some(mean) = scene.pixel_mean(&origin, &corners, &centre) {
@@ -375,7 +383,7 @@ fn render_with(
                         }
                         (&offsets, None)
                     }
-                    PixelSamples::Texture(surface, span) => {
+                    PixelSamples::Texture => {
                         if p.texture == TextureSamples::Quincunx {
                             let corner = |cx: usize, cy: usize| corners[cx + cy * (w + 1)];
                             let (a, b, c, d) = (
@@ -390,7 +398,11 @@ fn render_with(
                             });
                             continue;
                         }
-                        (&smooth_offsets, Some((surface, span)))
+                        // A texture pixel's neighbours all met one surface.
+                        match near(x, y) {
+                            Some(near) => (&smooth_offsets, Some(near)),
+                            None => (&offsets, None),
+                        }
                     }
                 };
                 let mut acc = [0.0f32; 3];

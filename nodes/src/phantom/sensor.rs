@@ -7,6 +7,7 @@
 //! of arithmetic on our own image layout.
 
 use crate::camera::CameraModel;
+use crate::simd::{Isa, kernels};
 use rand::{RngCore, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -58,6 +59,49 @@ fn fade_at_radius(r2: f64, s: f64) -> f64 {
     }
 }
 
+/// The sensor's gain and noise, the same for every sample.
+#[derive(Clone, Copy)]
+pub(crate) struct SampleNoise {
+    /// Read noise standard deviation, full-scale units.
+    read: f64,
+    /// [`SensorParams::exposure_gain`].
+    exposure_gain: f64,
+    /// [`SensorParams::full_well_e`] (0: no shot noise).
+    full_well_e: f64,
+}
+
+kernels! {
+    /// Each sample's 8-bit value: its light `values[i]` (linear, 0..1 =
+    /// saturation) faded by `fades[i]`, gained, plus Gaussian noise drawn
+    /// from the random word `words[i]`, clipped and rounded. Branch-free
+    /// over the samples, so it vectorises; AVX2 gives the same bits.
+    fn expose_samples(values: &[f32], fades: &[f64], words: &[u64], noise: SampleNoise, out: &mut [u8]) {
+        let n = out.len();
+        let (values, fades, words) = (&values[..n], &fades[..n], &words[..n]);
+        let SampleNoise { read, exposure_gain, full_well_e } = noise;
+        let shot = full_well_e > 0.0;
+        for i in 0..n {
+            // Times a gain of exactly 1 is the same bits as no product.
+            let signal = values[i] as f64 * fades[i] * exposure_gain;
+            let shot_sigma = (read * read + signal.max(0.0) / full_well_e).sqrt();
+            let sigma = if shot { shot_sigma } else { read };
+            // Sensor noise: the sum of four 16-bit uniforms (Irwin-Hall),
+            // scaled to unit variance, is Gaussian to within 2 % in density
+            // for |z| < 3 and takes one random word per sample instead of a
+            // ziggurat draw. The sum is under 2^18, so its f64 is the bits
+            // 2^52 + sum, less 2^52 (exact; a conversion that vectorises).
+            let r = words[i];
+            let sum = (r & 0xFFFF) + ((r >> 16) & 0xFFFF) + ((r >> 32) & 0xFFFF) + (r >> 48);
+            let uniforms = (f64::from_bits(0x4330_0000_0000_0000 | sum) - 4_503_599_627_370_496.0)
+                / 65536.0;
+            let v = signal + (uniforms - 2.0) * 3.0f64.sqrt() * sigma;
+            // Truncation after +0.5 rounds (in 0.5..=255.5 after the clamp;
+            // NaN gives 0 either way).
+            out[i] = ((v * 255.0).clamp(0.0, 255.0) + 0.5) as i32 as u8;
+        }
+    }
+}
+
 /// Which colour an RGGB mosaic records at (x, y).
 fn bayer_channel(x: usize, y: usize) -> usize {
     match (y % 2, x % 2) {
@@ -78,63 +122,34 @@ pub fn expose(image: &[[f32; 3]], camera: &CameraModel, p: &SensorParams) -> Vec
         .map(|x| ((x as f64 - camera.cx) / camera.fx).powi(2))
         .collect();
     let samples_per_pixel = if p.bayer { 1 } else { 3 };
+    let isa = Isa::detect();
+    let noise = SampleNoise {
+        read,
+        exposure_gain: p.exposure_gain,
+        full_well_e: p.full_well_e,
+    };
     out.par_chunks_mut(w * 3).enumerate().for_each(|(y, row)| {
         let mut rng =
             ChaCha8Rng::seed_from_u64(p.seed.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ y as u64);
-        // One random word per sample, drawn in sample order, then the row's
-        // arithmetic in a loop without calls.
+        // One random word per sample, drawn in sample order.
         let words: Vec<u64> = (0..w * samples_per_pixel)
             .map(|_| rng.next_u64())
             .collect();
         let row_r2 = ((y as f64 - camera.cy) / camera.fy).powi(2);
-        let fades: Vec<f64> = column_r2
-            .iter()
-            .map(|&c| fade_at_radius(c + row_r2, p.vignetting))
-            .collect();
-        // Sensor noise: the sum of four 16-bit uniforms (Irwin-Hall), scaled to
-        // unit variance, is Gaussian to within 2 % in density for |z| < 3 and
-        // takes one random word per sample instead of a ziggurat draw.
-        let gaussian = |r: u64, sigma: f64| {
-            // The four uniforms' sum in integers, scaled once: every partial
-            // sum is exact in f64 either way, so these are the same bits as
-            // adding the scaled uniforms.
-            let words = (0..4).map(|i| (r >> (16 * i)) & 0xFFFF).sum::<u64>();
-            // Under 2^18: exact as a signed integer, converted in one instruction.
-            let sum = words as i64 as f64 / 65536.0;
-            (sum - 2.0) * 3.0f64.sqrt() * sigma
-        };
-        let sample = |value: f32, fade: f64, word: u64| -> u8 {
-            let mut signal = value as f64 * fade;
-            if p.exposure_gain != 1.0 {
-                signal *= p.exposure_gain;
-            }
-            let sigma = if p.full_well_e > 0.0 {
-                (read * read + signal.max(0.0) / p.full_well_e).sqrt()
-            } else {
-                read
-            };
-            let v = signal + gaussian(word, sigma);
-            // Truncation after +0.5 rounds (non-negative after the clamp),
-            // without a library call per sample.
-            ((v * 255.0).clamp(0.0, 255.0) + 0.5) as u8
-        };
+        let fade = |c: f64| fade_at_radius(c + row_r2, p.vignetting);
         let pixels = &image[y * w..(y + 1) * w];
         if p.bayer {
-            for (x, ((&fade, &word), rgb)) in fades.iter().zip(&words).zip(pixels).enumerate() {
-                let ch = bayer_channel(x, y);
-                row[x * 3 + ch] = sample(rgb[ch], fade, word);
+            let channel = |x: usize| bayer_channel(x, y);
+            let values: Vec<f32> = (0..w).map(|x| pixels[x][channel(x)]).collect();
+            let fades: Vec<f64> = column_r2.iter().map(|&c| fade(c)).collect();
+            let mut recorded = vec![0u8; w];
+            isa.expose_samples(&values, &fades, &words, noise, &mut recorded);
+            for (x, v) in recorded.into_iter().enumerate() {
+                row[x * 3 + channel(x)] = v;
             }
         } else {
-            for (((out, &fade), words), rgb) in row
-                .chunks_exact_mut(3)
-                .zip(&fades)
-                .zip(words.chunks_exact(3))
-                .zip(pixels)
-            {
-                for ch in 0..3 {
-                    out[ch] = sample(rgb[ch], fade, words[ch]);
-                }
-            }
+            let fades: Vec<f64> = column_r2.iter().flat_map(|&c| [fade(c); 3]).collect();
+            isa.expose_samples(pixels.as_flattened(), &fades, &words, noise, row);
         }
     });
     if p.bayer {

@@ -349,9 +349,8 @@ fn render_with(
                 .into_par_iter()
                 .map(|i| {
                     let (cx, cy) = (i % (w + 1), i / (w + 1));
-                    let around = (cy.saturating_sub(1)..(cy + 1).min(h)).flat_map(|y| {
-                        (cx.saturating_sub(1)..(cx + 1).min(w)).map(move |x| (x, y))
-                    });
+                    let around = (cy.saturating_sub(1)..(cy + 1).min(h))
+                        .flat_map(|y| (cx.saturating_sub(1)..(cx + 1).min(w)).map(move |x| (x, y)));
                     around
                         .filter(|&(x, y)| samples[x + y * w] == PixelSamples::Texture)
                         .find_map(|(x, y)| near(x, y))
@@ -369,7 +368,8 @@ fn render_with(
                 let (grid, near) = match samples[x + y * w] {
                     PixelSamples::Centre => continue,
                     PixelSamples::Edge => {
-                        let corner = |cx: usize, cy: usize| rotation * corner_rays[cx + cy * (w + 1)];
+                        let corner =
+                            |cx: usize, cy: usize| rotation * corner_rays[cx + cy * (w + 1)];
                         let corners = [
                             corner(x, y),
                             corner(x + 1, y),

@@ -8,7 +8,7 @@ use super::moved_shape::MovedShape;
 use super::props::{Prop, first_prop};
 use super::render::{Scene, Seen};
 use super::shape::Surface;
-use super::texture::ValueNoise;
+use super::texture::{RecentCell, ValueNoise};
 use crate::numeric::floor_i64;
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use std::cell::Cell;
@@ -124,27 +124,40 @@ impl ChessboardScene {
     }
 
     /// What the ray from `origin` along `dir` sees, its origin given in
-    /// board coordinates too (`board_origin`): the board, or the wall.
+    /// board coordinates too (`board_origin`): the board, or the wall
+    /// (`recent`: the clutter's last cell).
     fn board_or_wall(
         &self,
         origin: &Point3<f64>,
         board_origin: &Vector3<f64>,
         dir: &Vector3<f64>,
+        recent: &mut RecentCell,
     ) -> ([f32; 3], f64) {
         if let Some((p, t)) = self.meet_board_plane(board_origin, dir)
             && let Some(a) = self.board.albedo(p.x, p.y)
         {
             return (self.board_rgb(a, p.x), t);
         }
-        self.wall(origin, dir)
+        self.wall_near(origin, dir, recent)
     }
 
     /// The wall 1.6 m away, with blotchy clutter, along the ray.
     fn wall(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> ([f32; 3], f64) {
+        self.wall_near(origin, dir, &mut RecentCell::default())
+    }
+
+    /// [`ChessboardScene::wall`] for a ray near the last one that met it
+    /// (`recent`: the clutter's last cell).
+    fn wall_near(
+        &self,
+        origin: &Point3<f64>,
+        dir: &Vector3<f64>,
+        recent: &mut RecentCell,
+    ) -> ([f32; 3], f64) {
         let t = (1600.0 - origin.z) / dir.z.max(1e-3);
         let p = origin + dir * t;
         let noise = ValueNoise::new(self.seed);
-        let v = 0.3 + 0.35 * noise.at(&p, 1.0 / 40.0) as f32;
+        let v = 0.3 + 0.35 * noise.at_near(&p, 1.0 / 40.0, recent) as f32;
         ([v * 0.95, v, v * 1.05], t)
     }
 }
@@ -152,10 +165,16 @@ impl ChessboardScene {
 impl Scene for ChessboardScene {
     fn radiance_at(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> ([f32; 3], f64) {
         let (r, t) = &self.world_to_board;
-        self.board_or_wall(origin, &(r * origin.coords + t), dir)
+        self.board_or_wall(
+            origin,
+            &(r * origin.coords + t),
+            dir,
+            &mut RecentCell::default(),
+        )
     }
 
-    /// The origin goes to board coordinates once for all the rays.
+    /// The origin goes to board coordinates once for all the rays, and
+    /// the wall's clutter is hashed once a cell along the row.
     fn seen_all(
         &self,
         origin: &Point3<f64>,
@@ -165,8 +184,9 @@ impl Scene for ChessboardScene {
     ) {
         let (r, t) = &self.world_to_board;
         let board_origin = r * origin.coords + t;
+        let mut recent = RecentCell::default();
         for ((dir, rgb), hit) in dirs.iter().zip(rgb).zip(hits) {
-            let (seen, distance_mm) = self.board_or_wall(origin, &board_origin, dir);
+            let (seen, distance_mm) = self.board_or_wall(origin, &board_origin, dir, &mut recent);
             *rgb = seen;
             *hit = (distance_mm, None);
         }

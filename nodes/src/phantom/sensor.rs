@@ -74,32 +74,45 @@ kernels! {
     /// Each sample's 8-bit value: its light `values[i]` (linear, 0..1 =
     /// saturation) faded by `fades[i]`, gained, plus Gaussian noise drawn
     /// from the random word `words[i]`, clipped and rounded. Branch-free
-    /// over the samples, so it vectorises; AVX2 gives the same bits.
+    /// within a loop, so it vectorises; AVX2 gives the same bits.
     fn expose_samples(values: &[f32], fades: &[f64], words: &[u64], noise: SampleNoise, out: &mut [u8]) {
         let n = out.len();
         let (values, fades, words) = (&values[..n], &fades[..n], &words[..n]);
         let SampleNoise { read, exposure_gain, full_well_e } = noise;
-        let shot = full_well_e > 0.0;
-        for i in 0..n {
-            // Times a gain of exactly 1 is the same bits as no product.
-            let signal = values[i] as f64 * fades[i] * exposure_gain;
-            let shot_sigma = (read * read + signal.max(0.0) / full_well_e).sqrt();
-            let sigma = if shot { shot_sigma } else { read };
-            // Sensor noise: the sum of four 16-bit uniforms (Irwin-Hall),
-            // scaled to unit variance, is Gaussian to within 2 % in density
-            // for |z| < 3 and takes one random word per sample instead of a
-            // ziggurat draw. The sum is under 2^18, so its f64 is the bits
-            // 2^52 + sum, less 2^52 (exact; a conversion that vectorises).
-            let r = words[i];
-            let sum = (r & 0xFFFF) + ((r >> 16) & 0xFFFF) + ((r >> 32) & 0xFFFF) + (r >> 48);
-            let uniforms = (f64::from_bits(0x4330_0000_0000_0000 | sum) - 4_503_599_627_370_496.0)
-                / 65536.0;
-            let v = signal + (uniforms - 2.0) * 3.0f64.sqrt() * sigma;
-            // Truncation after +0.5 rounds (in 0.5..=255.5 after the clamp;
-            // NaN gives 0 either way).
-            out[i] = ((v * 255.0).clamp(0.0, 255.0) + 0.5) as i32 as u8;
+        // Without shot noise the loop has no square root or division.
+        if full_well_e > 0.0 {
+            for i in 0..n {
+                let signal = values[i] as f64 * fades[i] * exposure_gain;
+                let sigma = (read * read + signal.max(0.0) / full_well_e).sqrt();
+                out[i] = exposed_sample(signal, sigma, words[i]);
+            }
+        } else {
+            for i in 0..n {
+                // Times a gain of exactly 1 is the same bits as no product.
+                let signal = values[i] as f64 * fades[i] * exposure_gain;
+                out[i] = exposed_sample(signal, read, words[i]);
+            }
         }
     }
+}
+
+/// The 8-bit value of a sample of `signal` (full-scale units) with
+/// Gaussian noise of standard deviation `sigma` drawn from the random word
+/// `r`, clipped and rounded.
+#[inline(always)]
+fn exposed_sample(signal: f64, sigma: f64, r: u64) -> u8 {
+    // Sensor noise: the sum of four 16-bit uniforms (Irwin-Hall),
+    // scaled to unit variance, is Gaussian to within 2 % in density
+    // for |z| < 3 and takes one random word per sample instead of a
+    // ziggurat draw. The sum is under 2^18, so its f64 is the bits
+    // 2^52 + sum, less 2^52 (exact; a conversion that vectorises).
+    let sum = (r & 0xFFFF) + ((r >> 16) & 0xFFFF) + ((r >> 32) & 0xFFFF) + (r >> 48);
+    let uniforms =
+        (f64::from_bits(0x4330_0000_0000_0000 | sum) - 4_503_599_627_370_496.0) / 65536.0;
+    let v = signal + (uniforms - 2.0) * 3.0f64.sqrt() * sigma;
+    // Truncation after +0.5 rounds (in 0.5..=255.5 after the clamp;
+    // NaN gives 0 either way).
+    ((v * 255.0).clamp(0.0, 255.0) + 0.5) as i32 as u8
 }
 
 /// Which colour an RGGB mosaic records at (x, y).
@@ -132,9 +145,7 @@ pub fn expose(image: &[[f32; 3]], camera: &CameraModel, p: &SensorParams) -> Vec
         let mut rng =
             ChaCha8Rng::seed_from_u64(p.seed.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ y as u64);
         // One random word per sample, drawn in sample order.
-        let words: Vec<u64> = (0..w * samples_per_pixel)
-            .map(|_| rng.next_u64())
-            .collect();
+        let words: Vec<u64> = (0..w * samples_per_pixel).map(|_| rng.next_u64()).collect();
         let row_r2 = ((y as f64 - camera.cy) / camera.fy).powi(2);
         let fade = |c: f64| fade_at_radius(c + row_r2, p.vignetting);
         let pixels = &image[y * w..(y + 1) * w];

@@ -22,6 +22,10 @@ fn cell(p: &Point3<f64>, frequency: f64) -> ([i64; 3], [f64; 3]) {
     )
 }
 
+/// The lattice cell [`ValueNoise::at_near`] met last and its corner values.
+#[derive(Debug, Clone, Default)]
+pub struct RecentCell(Option<([i64; 3], [f64; 8])>);
+
 /// Smooth pseudo-random noise in [0, 1] over 3D space, with features about
 /// `1 / frequency` mm across.
 #[derive(Debug, Clone, Copy)]
@@ -56,9 +60,9 @@ impl ValueNoise {
         Self::finish(Self::mix(Self::mix(Self::mix(h, x), y), z))
     }
 
-    /// Noise at `p` (mm) with lattice spacing `1 / frequency` mm.
-    pub fn at(&self, p: &Point3<f64>, frequency: f64) -> f64 {
-        let ([ix, iy, iz], [tx, ty, tz]) = cell(p, frequency);
+    /// The lattice values at the eight corners of the cell whose lowest
+    /// corner is (ix, iy, iz), indexed dx | dy << 1 | dz << 2.
+    fn corner_values(&self, [ix, iy, iz]: [i64; 3]) -> [f64; 8] {
         // The corners share their hashes' prefixes: 2 states after x, 4
         // after y, 8 after z (14 mixes instead of 24).
         let start = self.seed ^ 0x9E37_79B9_7F4A_7C15;
@@ -72,6 +76,33 @@ impl ValueNoise {
                 }
             }
         }
+        value
+    }
+
+    /// Noise at `p` (mm) with lattice spacing `1 / frequency` mm.
+    pub fn at(&self, p: &Point3<f64>, frequency: f64) -> f64 {
+        let (lowest, weights) = cell(p, frequency);
+        Self::interpolate(&self.corner_values(lowest), weights)
+    }
+
+    /// [`ValueNoise::at`] for a run of nearby points, such as the rays of
+    /// a row of pixels: the corner values of the cell `recent` holds are
+    /// not hashed again (they depend on the cell alone: the same bits).
+    /// `recent` must be used with one noise and one frequency.
+    pub fn at_near(&self, p: &Point3<f64>, frequency: f64, recent: &mut RecentCell) -> f64 {
+        let (lowest, weights) = cell(p, frequency);
+        let (cell, values) = recent
+            .0
+            .get_or_insert_with(|| (lowest, self.corner_values(lowest)));
+        if *cell != lowest {
+            (*cell, *values) = (lowest, self.corner_values(lowest));
+        }
+        Self::interpolate(values, weights)
+    }
+
+    /// The trilinear mix of a cell's corner values at eased position
+    /// `weights` in it.
+    fn interpolate(value: &[f64; 8], [tx, ty, tz]: [f64; 3]) -> f64 {
         let mut acc = 0.0;
         for (corner, v) in value.iter().enumerate() {
             let (dx, dy, dz) = (corner & 1, (corner >> 1) & 1, corner >> 2);
@@ -127,6 +158,28 @@ mod tests {
             for f in [1.0 / 40.0, 1.0 / 1.6, 2.5] {
                 assert_eq!(n.at(&p, f).to_bits(), noise_by_corners(&n, &p, f).to_bits());
             }
+        }
+    }
+
+    #[test]
+    fn noise_near_the_last_point_gives_the_same_bits() {
+        let n = ValueNoise::new(7);
+        for f in [1.0 / 40.0, 0.9] {
+            let mut recent = RecentCell::default();
+            let mut cells = std::collections::HashSet::new();
+            for i in 0..3000 {
+                // A slanted line, crossing cells now and then, and back.
+                let s = if i < 1500 { i } else { 3000 - i } as f64 * 0.05;
+                let p = Point3::new(s - 37.0, 0.3 * s + 2.0, -0.7 * s);
+                cells.insert(cell(&p, f).0);
+                let near = n.at_near(&p, f, &mut recent);
+                assert_eq!(
+                    near.to_bits(),
+                    n.at(&p, f).to_bits(),
+                    "point {i}, frequency {f}"
+                );
+            }
+            assert!(cells.len() > 3, "{} cells", cells.len());
         }
     }
 

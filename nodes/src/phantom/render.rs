@@ -12,6 +12,7 @@ use super::defocus::{Lens, defocus, gaussian_blur};
 use super::sensor::{SensorParams, expose};
 use crate::camera::CameraModel;
 use crate::numeric::floor_usize;
+use crate::simd::{Isa, kernels};
 use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 
@@ -148,6 +149,18 @@ enum PixelSamples {
     Edge,
     /// Texture alone on the smooth surface its neighbours all met.
     Texture,
+}
+
+kernels! {
+    /// Raises each `largest[i]` to |a[i] - b[i]| where that is larger (a
+    /// NaN difference is never larger).
+    fn raise_to_differences(largest: &mut [f32], a: &[f32], b: &[f32]) {
+        let n = largest.len();
+        let (a, b) = (&a[..n], &b[..n]);
+        for i in 0..n {
+            largest[i] = largest[i].max((a[i] - b[i]).abs());
+        }
+    }
 }
 
 /// Normalised ray coordinates on a coarse pixel grid, bilinearly interpolated:
@@ -305,6 +318,7 @@ fn render_with(
         // is sampled again, a row at a time: each of the nine neighbours is
         // a shifted row, compared channel by channel as flat rows of
         // floats (a loop that vectorises), then the channels joined.
+        let isa = Isa::detect();
         let mut samples = vec![PixelSamples::Centre; w * h];
         samples.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
             let own = centre[y * w..(y + 1) * w].as_flattened();
@@ -316,14 +330,11 @@ fn render_with(
                 // Pixel x against x - 1, x and x + 1 of that row.
                 for (mine, theirs) in [(3, 0), (0, 0), (0, 3)] {
                     let n = 3 * w - mine.max(theirs);
-                    let (largest, a, b) = (
+                    isa.raise_to_differences(
                         &mut largest[mine..mine + n],
                         &own[mine..mine + n],
                         &other[theirs..theirs + n],
                     );
-                    for i in 0..n {
-                        largest[i] = largest[i].max((a[i] - b[i]).abs());
-                    }
                 }
             }
             let differs = |x: usize| largest[3 * x..3 * x + 3].iter().any(|&d| d > 0.02);

@@ -16,7 +16,7 @@
 //! only the span of their distances ([`MovedShape::intersect_near`]).
 
 use super::motion::MotionField;
-use super::shape::{PhantomShape, Surface};
+use super::shape::{PhantomShape, RaysFrom, Surface};
 use nalgebra::{Matrix3, Point3, Vector3};
 use rayon::prelude::*;
 
@@ -121,12 +121,7 @@ impl MovedShape {
         t_min: f64,
     ) -> Option<MovedHit> {
         let Some(grid) = &self.inverse else {
-            return self.shape.intersect(origin, dir, t_min).map(|h| MovedHit {
-                t: h.t,
-                normal: h.normal,
-                surface: h.surface,
-                scanned: origin + dir * h.t,
-            });
+            return unmoved_hit(origin, dir, self.shape.intersect(origin, dir, t_min));
         };
         let (t0, t1) = self.clip(origin, dir)?;
         let t0 = t0.max(t_min);
@@ -147,6 +142,24 @@ impl MovedShape {
         // Chord hits carry the scanned surface's normal until here.
         hit.normal = self.field.moved_normal(&hit.scanned, &hit.normal);
         Some(hit)
+    }
+
+    /// Rays from `origin` (phantom frame) ready for
+    /// [`MovedShape::intersect_from`]; `None` where the tissue moved (the
+    /// moved body is followed along each ray, which shares nothing).
+    pub fn rays_from(&self, origin: &Point3<f64>) -> Option<RaysFrom<'_>> {
+        self.inverse.is_none().then(|| self.shape.rays_from(origin))
+    }
+
+    /// [`MovedShape::intersect`] from the origin of `rays` (which
+    /// [`MovedShape::rays_from`] made) along unit `dir`.
+    pub fn intersect_from(
+        &self,
+        rays: &RaysFrom,
+        dir: &Vector3<f64>,
+        t_min: f64,
+    ) -> Option<MovedHit> {
+        unmoved_hit(rays.origin(), dir, rays.intersect(dir, t_min))
     }
 
     /// [`MovedShape::intersect`] for a ray whose neighbours, within a pixel
@@ -337,6 +350,20 @@ impl InverseGrid {
         }
         p + offset
     }
+}
+
+/// A hit on the unmoved shape as a [`MovedHit`]: it lies where it was scanned.
+fn unmoved_hit(
+    origin: &Point3<f64>,
+    dir: &Vector3<f64>,
+    hit: Option<super::shape::Hit>,
+) -> Option<MovedHit> {
+    hit.map(|h| MovedHit {
+        t: h.t,
+        normal: h.normal,
+        surface: h.surface,
+        scanned: origin + dir * h.t,
+    })
 }
 
 #[cfg(test)]

@@ -7,7 +7,7 @@ use super::lighting::{Lighting, SurfacePoint};
 use super::moved_shape::MovedShape;
 use super::props::{Prop, first_prop};
 use super::render::{Scene, Seen};
-use super::shape::Surface;
+use super::shape::{RaysFrom, Surface};
 use super::texture::{RecentCell, ValueNoise};
 use crate::numeric::floor_i64;
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
@@ -318,8 +318,24 @@ impl PhantomScene {
     /// are cast, the moved body is searched only near the skin's span of
     /// distances, and the table is taken as met.
     fn look(&self, origin: &Point3<f64>, dir: &Vector3<f64>, near: Option<Near>) -> Seen {
+        self.look_from(origin, dir, near, None)
+    }
+
+    /// [`PhantomScene::look`], given the body's rays from the origin
+    /// (phantom frame) when the body can share them
+    /// ([`MovedShape::rays_from`]).
+    fn look_from(
+        &self,
+        origin: &Point3<f64>,
+        dir: &Vector3<f64>,
+        near: Option<Near>,
+        rays: Option<&RaysFrom>,
+    ) -> Seen {
         let (o, d) = (
-            self.phantom_to_world.inverse_transform_point(origin),
+            rays.map_or_else(
+                || self.phantom_to_world.inverse_transform_point(origin),
+                |rays| *rays.origin(),
+            ),
             self.phantom_to_world.inverse_transform_vector(dir),
         );
         let table_t = if dir.z < 0.0 {
@@ -351,7 +367,10 @@ impl PhantomScene {
                 span_mm,
                 ..
             }) => self.body.intersect_near(&o, &d, 1e-6, span_mm),
-            _ => self.body.intersect(&o, &d, 1e-6),
+            _ => match rays {
+                Some(rays) => self.body.intersect_from(rays, &d, 1e-6),
+                None => self.body.intersect(&o, &d, 1e-6),
+            },
         }
         .filter(|h| h.t < table_t);
         if let Some((i, t, normal)) = first_prop(&self.props, origin, dir, 1e-6)
@@ -421,6 +440,24 @@ impl Scene for PhantomScene {
 
     fn seen(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> Seen {
         self.look(origin, dir, None)
+    }
+
+    /// The body's rays share what depends on the origin alone.
+    fn seen_all(
+        &self,
+        origin: &Point3<f64>,
+        dirs: &[Vector3<f64>],
+        rgb: &mut [[f32; 3]],
+        hits: &mut [(f64, Option<u32>)],
+    ) {
+        let rays = self
+            .body
+            .rays_from(&self.phantom_to_world.inverse_transform_point(origin));
+        for ((dir, rgb), hit) in dirs.iter().zip(rgb).zip(hits) {
+            let look = self.look_from(origin, dir, None, rays.as_ref());
+            *rgb = look.rgb;
+            *hit = (look.distance_mm, look.smooth_surface);
+        }
     }
 
     /// `surface` is a key [`PhantomScene::key`] made.

@@ -381,11 +381,30 @@ impl PhantomShape {
 
     /// Both ray parameters where the ray meets the ellipsoid, if it does.
     fn ellipsoid_roots(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> Option<(f64, f64)> {
+        self.ellipsoid_roots_from(&self.unit_origin(origin), dir)
+    }
+
+    /// `origin` in the ellipsoid's unit-sphere coordinates, and its squared
+    /// length less 1: what [`PhantomShape::ellipsoid_roots`] needs of it.
+    fn unit_origin(&self, origin: &Point3<f64>) -> (Vector3<f64>, f64) {
         let axes = Vector3::from(self.semi_axes_mm);
         let r_inv = self.rotation().inverse();
         let o = (r_inv * (origin - Point3::from(self.ellipsoid_center_mm))).component_div(&axes);
+        let c = o.norm_squared() - 1.0;
+        (o, c)
+    }
+
+    /// [`PhantomShape::ellipsoid_roots`] from the origin's
+    /// [`PhantomShape::unit_origin`].
+    fn ellipsoid_roots_from(
+        &self,
+        (o, c): &(Vector3<f64>, f64),
+        dir: &Vector3<f64>,
+    ) -> Option<(f64, f64)> {
+        let axes = Vector3::from(self.semi_axes_mm);
+        let r_inv = self.rotation().inverse();
         let d = (r_inv * dir).component_div(&axes);
-        let (a, b, c) = (d.norm_squared(), 2.0 * o.dot(&d), o.norm_squared() - 1.0);
+        let (a, b, c) = (d.norm_squared(), 2.0 * o.dot(&d), *c);
         let disc = b * b - 4.0 * a * c;
         if disc < 0.0 {
             return None;
@@ -400,13 +419,43 @@ impl PhantomShape {
     /// The first surface hit by the ray from `origin` along unit `dir`, beyond
     /// `t_min`. The base (z = 0) is not a visible surface.
     pub fn intersect(&self, origin: &Point3<f64>, dir: &Vector3<f64>, t_min: f64) -> Option<Hit> {
+        self.intersect_from(origin, &self.unit_origin(origin), dir, t_min, |i| {
+            MarkerOffset::new(&self.markers[i], origin)
+        })
+    }
+
+    /// Rays from `origin` (phantom frame, mm), ready for
+    /// [`RaysFrom::intersect`].
+    pub fn rays_from(&self, origin: &Point3<f64>) -> RaysFrom<'_> {
+        RaysFrom {
+            shape: self,
+            origin: *origin,
+            unit_origin: self.unit_origin(origin),
+            markers: self
+                .markers
+                .iter()
+                .map(|m| MarkerOffset::new(m, origin))
+                .collect(),
+        }
+    }
+
+    /// [`PhantomShape::intersect`] given what depends on the origin alone:
+    /// its [`PhantomShape::unit_origin`] and each marker's offset.
+    fn intersect_from(
+        &self,
+        origin: &Point3<f64>,
+        unit_origin: &(Vector3<f64>, f64),
+        dir: &Vector3<f64>,
+        t_min: f64,
+        offset: impl Fn(usize) -> MarkerOffset,
+    ) -> Option<Hit> {
         let mut best: Option<Hit> = None;
         let mut consider = |hit: Hit| {
             if hit.t > t_min && best.is_none_or(|b| hit.t < b.t) {
                 best = Some(hit);
             }
         };
-        if let Some((t1, _)) = self.ellipsoid_roots(origin, dir) {
+        if let Some((t1, _)) = self.ellipsoid_roots_from(unit_origin, dir) {
             let p = origin + dir * t1;
             if p.z >= 0.0 {
                 consider(Hit {
@@ -416,8 +465,8 @@ impl PhantomShape {
                 });
             }
         }
-        for m in &self.markers {
-            if let Some(hit) = intersect_marker(m, origin, dir, t_min) {
+        for (i, m) in self.markers.iter().enumerate() {
+            if let Some(hit) = intersect_marker(m, &offset(i), dir, t_min) {
                 consider(hit);
             }
         }
@@ -560,17 +609,60 @@ fn markers_apart(markers: &[Marker], radius: f64) -> bool {
     })
 }
 
+/// A marker seen from a ray's origin: the origin less the marker's skin
+/// point, and that offset's squared length less the marker's bounding
+/// radius squared (positive: the origin is outside its bounding sphere).
+#[derive(Debug, Clone, Copy)]
+struct MarkerOffset {
+    w: Vector3<f64>,
+    c_sphere: f64,
+}
+
+impl MarkerOffset {
+    fn new(m: &Marker, origin: &Point3<f64>) -> Self {
+        let w = origin - Point3::from(m.skin_point_mm);
+        MarkerOffset {
+            w,
+            c_sphere: w.norm_squared() - m.bounding_radius_squared(),
+        }
+    }
+}
+
+/// [`PhantomShape::intersect`] for many rays from one origin: what depends
+/// on the origin alone (its place in the ellipsoid's unit sphere, each
+/// marker's offset) is computed once, and each ray's answer has the same
+/// bits.
+pub struct RaysFrom<'a> {
+    shape: &'a PhantomShape,
+    origin: Point3<f64>,
+    unit_origin: (Vector3<f64>, f64),
+    markers: Vec<MarkerOffset>,
+}
+
+impl RaysFrom<'_> {
+    /// The origin, phantom frame, mm.
+    pub fn origin(&self) -> &Point3<f64> {
+        &self.origin
+    }
+
+    /// [`PhantomShape::intersect`] from the origin along unit `dir`.
+    pub fn intersect(&self, dir: &Vector3<f64>, t_min: f64) -> Option<Hit> {
+        self.shape
+            .intersect_from(&self.origin, &self.unit_origin, dir, t_min, |i| {
+                self.markers[i]
+            })
+    }
+}
+
 fn intersect_marker(
     m: &Marker,
-    origin: &Point3<f64>,
+    &MarkerOffset { w, c_sphere }: &MarkerOffset,
     dir: &Vector3<f64>,
     t_min: f64,
 ) -> Option<Hit> {
-    let (s, n) = m.axis();
-    let w = origin - s;
+    let (_, n) = m.axis();
     // Cull by the bounding sphere.
     let b_half = w.dot(dir);
-    let c_sphere = w.norm_squared() - m.bounding_radius_squared();
     if c_sphere > 0.0 && (b_half > 0.0 || b_half * b_half < c_sphere) {
         return None;
     }
@@ -693,6 +785,43 @@ mod tests {
         assert!((s.to_unit_sphere(&p).norm() - 1.0).abs() < 1e-9);
         assert!(hit.normal.dot(&dir) < 0.0, "normal faces the camera");
         assert!(s.intersect(&origin, &-dir, 0.0).is_none());
+    }
+
+    #[test]
+    fn rays_from_one_origin_hit_what_single_rays_hit() {
+        let s = phantom();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(21);
+        let mut surfaces = std::collections::HashSet::new();
+        for origin in [
+            Point3::new(30.0, -200.0, 150.0),
+            Point3::new(-160.0, 40.0, 90.0),
+            Point3::new(0.0, 0.0, 30.0),
+        ] {
+            let rays = s.rays_from(&origin);
+            // Rays at the markers' faces, near them and at random.
+            let aims = s.markers.iter().flat_map(|m| {
+                let face = m.face_center();
+                [face, face + Vector3::new(3.0, -2.0, 1.0)]
+            });
+            let random: Vec<Point3<f64>> = (0..400)
+                .map(|_| Point3::from(Vector3::from_fn(|_, _| rng.random_range(-80.0..80.0))))
+                .collect();
+            for aim in aims.chain(random) {
+                let dir = (aim - origin).normalize();
+                let (one, shared) = (s.intersect(&origin, &dir, 1e-6), rays.intersect(&dir, 1e-6));
+                assert_eq!(one, shared, "from {origin} towards {aim}");
+                if let Some(hit) = one {
+                    surfaces.insert(
+                        format!("{:?}", hit.surface)
+                            .chars()
+                            .take(10)
+                            .collect::<String>(),
+                    );
+                }
+            }
+        }
+        // Skin, marker faces and marker sides were all met.
+        assert_eq!(surfaces.len(), 3, "{surfaces:?}");
     }
 
     #[test]

@@ -5,6 +5,7 @@
 //! The renderer, MRI simulator and geometry are our own: no crate simulates
 //! partial-volume MRI or renders through an OpenCV-exact distortion model.
 
+mod board_rays;
 mod camera_surface;
 mod conditions;
 mod defocus;

@@ -2,6 +2,7 @@
 //! cluttered wall (calibration), and the phantom on a cloth-covered table
 //! under its [`Lighting`] (phantom views).
 
+use super::board_rays::{BoardPattern, BoardSample, board_row};
 use super::footprint::{Polygon, pieces};
 use super::lighting::{Lighting, SurfacePoint};
 use super::moved_shape::MovedShape;
@@ -173,8 +174,9 @@ impl Scene for ChessboardScene {
         )
     }
 
-    /// The origin goes to board coordinates once for all the rays, and
-    /// the wall's clutter is hashed once a cell along the row.
+    /// The origin goes to board coordinates once for all the rays, the
+    /// board is met in a loop that vectorises ([`board_row`]), and the
+    /// wall's clutter is hashed once a cell along the row.
     fn seen_all(
         &self,
         origin: &Point3<f64>,
@@ -184,9 +186,24 @@ impl Scene for ChessboardScene {
     ) {
         let (r, t) = &self.world_to_board;
         let board_origin = r * origin.coords + t;
+        let pattern = BoardPattern {
+            square_mm: self.board.square_mm,
+            extent_mm: self.board.extent(),
+            cols: self.board.cols,
+            rows: self.board.rows,
+        };
+        let samples = board_row(r, &board_origin, dirs, &pattern);
         let mut recent = RecentCell::default();
-        for ((dir, rgb), hit) in dirs.iter().zip(rgb).zip(hits) {
-            let (seen, distance_mm) = self.board_or_wall(origin, &board_origin, dir, &mut recent);
+        for (((dir, sample), rgb), hit) in dirs.iter().zip(samples).zip(rgb).zip(hits) {
+            let (seen, distance_mm) = match sample {
+                BoardSample::Board { distance_mm, grey } => {
+                    ([grey, grey, grey * 0.97], distance_mm)
+                }
+                BoardSample::Off => self.wall_near(origin, dir, &mut recent),
+                BoardSample::Undecided => {
+                    self.board_or_wall(origin, &board_origin, dir, &mut recent)
+                }
+            };
             *rgb = seen;
             *hit = (distance_mm, None);
         }
@@ -491,7 +508,7 @@ mod tests {
     use crate::phantom::motion::{MotionField, MotionKind};
     use crate::phantom::render::{Renderer, TextureSamples, sharp_params};
     use crate::phantom::{PhantomShape, ShapeParams};
-    use rand::SeedableRng;
+    use rand::{Rng, SeedableRng};
 
     /// The calibration board 500 mm in front of a camera at the origin,
     /// turned so that its edges cross pixels at every angle.
@@ -528,6 +545,50 @@ mod tests {
             }
         }
         sum.map(|s| s / (n * n) as f64)
+    }
+
+    #[test]
+    fn a_row_of_rays_sees_what_each_ray_sees_alone() {
+        let (board, pose) = tilted_board();
+        let scene = ChessboardScene::new(board, &pose, 7);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        // A fan over the board, its edges and the wall, from two origins
+        // (the left and a right camera), with rays along the board's plane,
+        // away from it, and NaN among them.
+        let mut dirs: Vec<Vector3<f64>> = (0..4000)
+            .map(|_| {
+                let (u, v) = (
+                    rng.random_range(-150.0..950.0),
+                    rng.random_range(-150.0..750.0),
+                );
+                pinhole_ray(u, v)
+            })
+            .collect();
+        let in_plane = pose.rotation * Vector3::new(0.6, 0.8, 0.0);
+        dirs.extend([in_plane, -in_plane, -(pose.rotation * Vector3::z())]);
+        dirs.push(Vector3::new(f64::NAN, 0.0, 1.0));
+        dirs.push(Vector3::new(0.0, f64::NAN, 1.0));
+        let (mut board_rays, mut wall_rays) = (0, 0);
+        for origin in [Point3::origin(), Point3::new(55.0, 0.4, -1.0)] {
+            let mut rgb = vec![[0.0f32; 3]; dirs.len()];
+            let mut hits = vec![(0.0, None); dirs.len()];
+            scene.seen_all(&origin, &dirs, &mut rgb, &mut hits);
+            for (i, dir) in dirs.iter().enumerate() {
+                let alone = scene.seen(&origin, dir);
+                let bits = |c: [f32; 3]| c.map(f32::to_bits);
+                assert_eq!(bits(rgb[i]), bits(alone.rgb), "ray {i}: {dir}");
+                assert_eq!(hits[i].0.to_bits(), alone.distance_mm.to_bits(), "ray {i}");
+                if alone.distance_mm < 1000.0 {
+                    board_rays += 1;
+                } else {
+                    wall_rays += 1;
+                }
+            }
+        }
+        assert!(
+            board_rays > 2000 && wall_rays > 2000,
+            "{board_rays} on the board, {wall_rays} off"
+        );
     }
 
     #[test]

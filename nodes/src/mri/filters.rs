@@ -8,19 +8,8 @@
 //! Volumes are `f32` (or `u8` masks) with i fastest, then j, then k, as
 //! [`fusegraph_engine::value::Grid::index`] lays them out.
 
-use crate::simd::{Isa, kernels};
+use crate::simd::Isa;
 use rayon::prelude::*;
-
-kernels! {
-    /// out += w v, element by element (the convolutions' inner loop: AVX2
-    /// works eight lanes at a time where SSE2 works four, with the same
-    /// bits, as no multiply and add are fused).
-    fn add_scaled(out: &mut [f32], w: f32, v: &[f32]) {
-        for (o, v) in out.iter_mut().zip(v) {
-            *o += w * v;
-        }
-    }
-}
 
 /// The volume smoothed by a Gaussian of standard deviation `sigma_mm` along
 /// every axis (`spacing_mm` the voxel spacing), kernel cut at 3 sigma; the

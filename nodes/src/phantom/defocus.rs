@@ -11,6 +11,7 @@
 //! Written here: two passes of a 1-D kernel over our own image layout.
 
 use crate::design::blur_circle_mm;
+use crate::simd::Isa;
 use rayon::prelude::*;
 
 /// A lens that focuses: what defocus needs besides each pixel's depth.
@@ -58,11 +59,12 @@ pub fn gaussian_blur(image: &[[f32; 3]], w: usize, h: usize, sigma: f64) -> Vec<
     kernel.iter_mut().for_each(|k| *k /= total);
     // Each output pixel sums its taps in kernel order in both passes (the
     // same bits whichever way the loops run).
+    let isa = Isa::detect();
     let along_rows = |src: &[[f32; 3]]| -> Vec<[f32; 3]> {
         let mut dst = vec![[0.0f32; 3]; w * h];
         dst.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
             let src_row = &src[y * w..(y + 1) * w];
-            blur_row(row, src_row, &kernel);
+            blur_row(isa, row, src_row, &kernel);
         });
         dst
     };
@@ -74,9 +76,7 @@ pub fn gaussian_blur(image: &[[f32; 3]], w: usize, h: usize, sigma: f64) -> Vec<
             for (k, &kw) in kernel.iter().enumerate() {
                 let sy = (y as isize + k as isize - radius).clamp(0, h as isize - 1) as usize;
                 let src_row = src[sy * w..(sy + 1) * w].as_flattened();
-                for (o, &s) in row.as_flattened_mut().iter_mut().zip(src_row) {
-                    *o += kw * s;
-                }
+                isa.add_scaled(row.as_flattened_mut(), kw, src_row);
             }
         });
         dst
@@ -89,7 +89,7 @@ pub fn gaussian_blur(image: &[[f32; 3]], w: usize, h: usize, sigma: f64) -> Vec<
 /// kernel order. The inside runs tap by tap over the whole run of outputs,
 /// RGB flattened, so the loop vectorises (one tap per output at a time,
 /// still in kernel order: the bits of a tap loop per output).
-fn blur_row(row: &mut [[f32; 3]], src: &[[f32; 3]], kernel: &[f32]) {
+fn blur_row(isa: Isa, row: &mut [[f32; 3]], src: &[[f32; 3]], kernel: &[f32]) {
     let (w, r) = (row.len(), kernel.len() / 2);
     let clamped = |x: usize| {
         let mut acc = [0.0f32; 3];
@@ -111,10 +111,7 @@ fn blur_row(row: &mut [[f32; 3]], src: &[[f32; 3]], kernel: &[f32]) {
         let src = src.as_flattened();
         for (k, &kw) in kernel.iter().enumerate() {
             // Output x reads src[x - r + k]: the run from 3 k floats in.
-            let taps = &src[3 * k..3 * k + out.len()];
-            for (o, &t) in out.iter_mut().zip(taps) {
-                *o += kw * t;
-            }
+            isa.add_scaled(out, kw, &src[3 * k..3 * k + out.len()]);
         }
     }
     for x in (0..r).chain(w - r..w) {
@@ -222,7 +219,7 @@ mod tests {
             let kernel: Vec<f32> = (0..taps).map(|k| 0.1 + k as f32 * 0.013).collect();
             let r = taps as isize / 2;
             let mut row = vec![[0.0f32; 3]; w];
-            blur_row(&mut row, &src, &kernel);
+            blur_row(Isa::detect(), &mut row, &src, &kernel);
             for (x, px) in row.iter().enumerate() {
                 let mut acc = [0.0f32; 3];
                 for (k, &kw) in kernel.iter().enumerate() {

@@ -63,6 +63,10 @@ impl Chessboard {
     }
 }
 
+/// The most lines of squares a pixel's footprint is cut along, per axis,
+/// before [`ChessboardScene::pixel_mean`] leaves the pixel to supersampling.
+const MAX_FOOTPRINT_CUTS: i64 = 64;
+
 /// A chessboard at `board_to_world`, lit unevenly, before a cluttered wall.
 pub struct ChessboardScene {
     board: Chessboard,
@@ -230,15 +234,20 @@ impl Scene for ChessboardScene {
         );
         let s = self.board.square_mm;
         let [x0, y0, x1, y1] = self.board.extent();
-        let cuts = |axis: usize, edges: [f64; 2]| -> Vec<f64> {
+        let cuts = |axis: usize, edges: [f64; 2]| -> Option<Vec<f64>> {
             let (lo, hi) = quad.range(axis);
-            let mut cuts: Vec<f64> = (floor_i64(lo / s) + 1..=floor_i64(hi / s))
-                .map(|k| k as f64 * s)
-                .collect();
+            let (first, last) = (floor_i64(lo / s).saturating_add(1), floor_i64(hi / s));
+            // A pixel's footprint crosses a few squares' edges; one at
+            // grazing incidence can reach across the whole plane, and is
+            // supersampled instead.
+            if last.saturating_sub(first) >= MAX_FOOTPRINT_CUTS {
+                return None;
+            }
+            let mut cuts: Vec<f64> = (first..=last).map(|k| k as f64 * s).collect();
             cuts.extend(edges.into_iter().filter(|&e| e > lo && e < hi));
-            cuts
+            Some(cuts)
         };
-        let (cuts_x, cuts_y) = (cuts(0, [x0, x1]), cuts(1, [y0, y1]));
+        let (cuts_x, cuts_y) = (cuts(0, [x0, x1])?, cuts(1, [y0, y1])?);
         let parts = pieces(quad, &cuts_x, &cuts_y);
         let total: f64 = parts.iter().map(|p| p.0).sum();
         if !(total > 0.0 && total.is_finite()) {
@@ -545,6 +554,37 @@ mod tests {
             }
         }
         sum.map(|s| s / (n * n) as f64)
+    }
+
+    #[test]
+    fn a_footprint_at_grazing_incidence_is_left_to_supersampling() {
+        // The board's plane 500 mm ahead, facing the camera; the pixel's
+        // corner rays nearly along it meet it hundreds of kilometres away,
+        // across about 10^10 squares.
+        let board = tilted_board().0;
+        let scene = ChessboardScene::new(board, &Isometry3::translation(-100.0, -60.0, 500.0), 7);
+        let corner = |y: f64, z: f64| Vector3::new(1.0, y, z).normalize();
+        let corners = [
+            corner(0.0, 1e-9),
+            corner(1e-3, 1e-9),
+            corner(1e-3, 2e-9),
+            corner(0.0, 2e-9),
+        ];
+        let centre = corner(5e-4, 1.5e-9);
+        assert_eq!(scene.pixel_mean(&Point3::origin(), &corners, &centre), None);
+        // A pixel near the board's middle still gets its exact mean.
+        let (u, v) = (400.0, 300.0);
+        let near = [
+            pinhole_ray(u - 0.5, v - 0.5),
+            pinhole_ray(u + 0.5, v - 0.5),
+            pinhole_ray(u + 0.5, v + 0.5),
+            pinhole_ray(u - 0.5, v + 0.5),
+        ];
+        assert!(
+            scene
+                .pixel_mean(&Point3::origin(), &near, &pinhole_ray(u, v))
+                .is_some()
+        );
     }
 
     #[test]

@@ -125,7 +125,9 @@ kernels! {
             let d1 = m[3] * a + m[4] * b + m[5] * c;
             let d2 = m[6] * a + m[7] * b + m[8] * c;
             let t = -oz / d2;
-            let meets_plane = !(d2.abs() <= 1e-12) & (t > 0.0);
+            // The scalar path refuses |d2| <= 1e-12, then t <= 0; a NaN d2
+            // gives a NaN t, refused by the second test in both.
+            let meets_plane = (d2.abs() > 1e-12) & (t > 0.0);
             let (x, y) = (ox + d0 * t, oy + d1 * t);
             let on_board = meets_plane & !((x < x0) | (y < y0) | (x > x1) | (y > y1));
             let (qx, qy) = (x / s, y / s);

@@ -17,8 +17,9 @@ pub(crate) struct BoardPattern {
     pub square_mm: f64,
     /// The board's outer edge: [x0, y0, x1, y1], mm.
     pub extent_mm: [f64; 4],
-    /// Inner corners per row and per column.
+    /// Inner corners per row.
     pub cols: usize,
+    /// Inner corners per column.
     pub rows: usize,
 }
 

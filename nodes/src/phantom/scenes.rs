@@ -101,21 +101,17 @@ impl ChessboardScene {
         [v, v, v * 0.97]
     }
 
-    /// Where the ray from `origin` along `dir` (world frame) meets the
+    /// `origin` (world frame) in board coordinates, mm.
+    fn to_board(&self, origin: &Point3<f64>) -> Vector3<f64> {
+        let (r, t) = &self.world_to_board;
+        r * origin.coords + t
+    }
+
+    /// Where the ray from `board_origin` (its origin in board coordinates,
+    /// [`ChessboardScene::to_board`]) along `dir` (world frame) meets the
     /// board's plane, in board coordinates (mm), and how far along it, mm;
     /// `None` for a ray parallel to the plane or pointing away from it.
     fn on_board_plane(
-        &self,
-        origin: &Point3<f64>,
-        dir: &Vector3<f64>,
-    ) -> Option<(Vector3<f64>, f64)> {
-        let (r, t) = &self.world_to_board;
-        self.meet_board_plane(&(r * origin.coords + t), dir)
-    }
-
-    /// [`ChessboardScene::on_board_plane`] from the origin in board
-    /// coordinates, `board_origin` (the ray's direction in the world frame).
-    fn meet_board_plane(
         &self,
         board_origin: &Vector3<f64>,
         dir: &Vector3<f64>,
@@ -138,7 +134,7 @@ impl ChessboardScene {
         dir: &Vector3<f64>,
         recent: &mut RecentCell,
     ) -> ([f32; 3], f64) {
-        if let Some((p, t)) = self.meet_board_plane(board_origin, dir)
+        if let Some((p, t)) = self.on_board_plane(board_origin, dir)
             && let Some(a) = self.board.albedo(p.x, p.y)
         {
             return (self.board_rgb(a, p.x), t);
@@ -169,10 +165,9 @@ impl ChessboardScene {
 
 impl Scene for ChessboardScene {
     fn radiance_at(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> ([f32; 3], f64) {
-        let (r, t) = &self.world_to_board;
         self.board_or_wall(
             origin,
-            &(r * origin.coords + t),
+            &self.to_board(origin),
             dir,
             &mut RecentCell::default(),
         )
@@ -188,15 +183,14 @@ impl Scene for ChessboardScene {
         rgb: &mut [[f32; 3]],
         hits: &mut [(f64, Option<u32>)],
     ) {
-        let (r, t) = &self.world_to_board;
-        let board_origin = r * origin.coords + t;
+        let board_origin = self.to_board(origin);
         let pattern = BoardPattern {
             square_mm: self.board.square_mm,
             extent_mm: self.board.extent(),
             cols: self.board.cols,
             rows: self.board.rows,
         };
-        let samples = board_row(r, &board_origin, dirs, &pattern);
+        let samples = board_row(&self.world_to_board.0, &board_origin, dirs, &pattern);
         let mut recent = RecentCell::default();
         for (((dir, sample), rgb), hit) in dirs.iter().zip(samples).zip(rgb).zip(hits) {
             let (seen, distance_mm) = match sample {
@@ -226,10 +220,14 @@ impl Scene for ChessboardScene {
         corners: &[Vector3<f64>; 4],
         centre: &Vector3<f64>,
     ) -> Option<[f32; 3]> {
+        let board_origin = self.to_board(origin);
         let quad = Polygon(
             corners
                 .iter()
-                .map(|dir| self.on_board_plane(origin, dir).map(|(p, _)| [p.x, p.y]))
+                .map(|dir| {
+                    self.on_board_plane(&board_origin, dir)
+                        .map(|(p, _)| [p.x, p.y])
+                })
                 .collect::<Option<_>>()?,
         );
         let s = self.board.square_mm;

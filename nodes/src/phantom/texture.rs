@@ -22,9 +22,10 @@ fn cell(p: &Point3<f64>, frequency: f64) -> ([i64; 3], [f64; 3]) {
     )
 }
 
-/// The lattice cell [`ValueNoise::at_near`] met last and its corner values.
+/// The lattice cell [`ValueNoise::at_near`] met last: the noise's seed,
+/// the cell's lowest corner and its corner values.
 #[derive(Debug, Clone, Default)]
-pub struct RecentCell(Option<([i64; 3], [f64; 8])>);
+pub struct RecentCell(Option<(u64, [i64; 3], [f64; 8])>);
 
 /// Smooth pseudo-random noise in [0, 1] over 3D space, with features about
 /// `1 / frequency` mm across.
@@ -87,17 +88,20 @@ impl ValueNoise {
 
     /// [`ValueNoise::at`] for a run of nearby points, such as the rays of
     /// a row of pixels: the corner values of the cell `recent` holds are
-    /// not hashed again (they depend on the cell alone: the same bits).
-    /// `recent` must be used with one noise and one frequency.
+    /// not hashed again (they depend on the seed and the cell alone, not
+    /// on the frequency: the same bits).
     pub fn at_near(&self, p: &Point3<f64>, frequency: f64, recent: &mut RecentCell) -> f64 {
         let (lowest, weights) = cell(p, frequency);
-        let (cell, values) = recent
-            .0
-            .get_or_insert_with(|| (lowest, self.corner_values(lowest)));
-        if *cell != lowest {
-            (*cell, *values) = (lowest, self.corner_values(lowest));
+        match &recent.0 {
+            Some((seed, cell, values)) if *seed == self.seed && *cell == lowest => {
+                Self::interpolate(values, weights)
+            }
+            _ => {
+                let values = self.corner_values(lowest);
+                recent.0 = Some((self.seed, lowest, values));
+                Self::interpolate(&values, weights)
+            }
         }
-        Self::interpolate(values, weights)
     }
 
     /// The trilinear mix of a cell's corner values at eased position
@@ -180,6 +184,15 @@ mod tests {
                 );
             }
             assert!(cells.len() > 3, "{} cells", cells.len());
+        }
+        // One cell shared by two noises and two frequencies, alternately.
+        let (other, mut recent) = (ValueNoise::new(8), RecentCell::default());
+        for i in 0..200 {
+            let p = Point3::new(0.3 + 1e-3 * i as f64, 0.1, 0.2);
+            for (noise, f) in [(&n, 1.0), (&other, 1.0), (&n, 0.5)] {
+                let near = noise.at_near(&p, f, &mut recent);
+                assert_eq!(near.to_bits(), noise.at(&p, f).to_bits(), "point {i}");
+            }
         }
     }
 

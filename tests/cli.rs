@@ -2,6 +2,10 @@
 //! validation exit codes, failures, concurrent processes, listing and dot.
 
 mod common;
+// The Slurm test lives in this binary so that its waits on the cluster's
+// daemons (half a minute, little CPU) overlap these tests' jobs; a binary
+// of its own ran alone, as `cargo test` runs one binary at a time.
+mod slurm;
 
 use common::{fusegraph, stderr};
 use std::path::{Path, PathBuf};

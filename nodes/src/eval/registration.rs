@@ -6,6 +6,7 @@ use crate::camera::isometry_from_matrix;
 use crate::cloud::Nearest;
 use crate::phantom::{GroundTruth, MotionField};
 use nalgebra::{Isometry3, Point3};
+use rayon::prelude::*;
 
 /// Where the truth puts MRI points in the left camera frame of one view: the
 /// rigid MRI -> camera transform of the phantom as scanned, and, when the
@@ -77,8 +78,9 @@ pub fn overlap_errors(
     inlier_mm: f64,
 ) -> Option<OverlapErrors> {
     let tree = Nearest::new(target)?;
+    // In parallel, in order: the sums below run over the same sequence.
     let d: Vec<f64> = source
-        .iter()
+        .par_iter()
         .map(|p| tree.nearest(&(source_to_target * p)).1.sqrt())
         .collect();
     let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();

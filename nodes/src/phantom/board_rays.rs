@@ -23,6 +23,26 @@ pub(crate) struct BoardPattern {
     pub rows: usize,
 }
 
+/// Reflectance of the board's black squares (linear, 0..1).
+pub(super) const BLACK_ALBEDO: f32 = 0.07;
+/// Reflectance of its white squares and border.
+pub(super) const WHITE_ALBEDO: f32 = 0.82;
+
+/// The light on the board at x mm along its `width_mm` of squares: it
+/// falls off across the board (uneven lighting), linearly between its first
+/// and last columns. Shared by the scalar path and the row kernel, so both
+/// give the same bits.
+#[inline(always)]
+pub(super) fn board_light(x: f64, width_mm: f64) -> f64 {
+    0.8 + 0.2 * (x / width_mm).clamp(0.0, 1.0)
+}
+
+/// A grey of the board (linear) as RGB: the board is a touch yellow.
+#[inline(always)]
+pub(super) fn board_grey_rgb(v: f32) -> [f32; 3] {
+    [v, v, v * 0.97]
+}
+
 /// What a ray of the row saw ([`board_row`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(super) enum BoardSample {
@@ -137,8 +157,8 @@ kernels! {
             let in_squares = (fx >= -1.0) & (fy >= -1.0) & (fx < cols) & (fy < rows);
             let half = (fx + fy) * 0.5;
             let black = in_squares & (floor_small(half) == half);
-            let albedo: f32 = if black { 0.07 } else { 0.82 };
-            let light = 0.8 + 0.2 * (x / width_mm).clamp(0.0, 1.0);
+            let albedo = if black { BLACK_ALBEDO } else { WHITE_ALBEDO };
+            let light = board_light(x, width_mm);
             distance_mm[i] = t;
             grey[i] = albedo * light as f32;
             code[i] = if !on_board {

@@ -2,7 +2,9 @@
 //! cluttered wall (calibration), and the phantom on a cloth-covered table
 //! under its [`Lighting`] (phantom views).
 
-use super::board_rays::{BoardPattern, BoardSample, board_row};
+use super::board_rays::{
+    BLACK_ALBEDO, BoardPattern, BoardSample, WHITE_ALBEDO, board_grey_rgb, board_light, board_row,
+};
 use super::footprint::{Polygon, pieces};
 use super::lighting::{Lighting, SurfacePoint};
 use super::moved_shape::MovedShape;
@@ -59,7 +61,7 @@ impl Chessboard {
         let (ix, iy) = (floor_i64(x / s), floor_i64(y / s));
         let in_squares = ix >= -1 && iy >= -1 && ix < self.cols as i64 && iy < self.rows as i64;
         let black = in_squares && (ix + iy).rem_euclid(2) == 0;
-        Some(if black { 0.07 } else { 0.82 })
+        Some(if black { BLACK_ALBEDO } else { WHITE_ALBEDO })
     }
 }
 
@@ -95,10 +97,8 @@ impl ChessboardScene {
     /// reflectance is `albedo`: the light falls off across the board
     /// (uneven lighting), linearly between its first and last columns.
     fn board_rgb(&self, albedo: f32, x: f64) -> [f32; 3] {
-        let light =
-            0.8 + 0.2 * (x / (self.board.cols as f64 * self.board.square_mm)).clamp(0.0, 1.0);
-        let v = albedo * light as f32;
-        [v, v, v * 0.97]
+        let light = board_light(x, self.board.cols as f64 * self.board.square_mm);
+        board_grey_rgb(albedo * light as f32)
     }
 
     /// `origin` (world frame) in board coordinates, mm.
@@ -194,9 +194,7 @@ impl Scene for ChessboardScene {
         let mut recent = RecentCell::default();
         for (((dir, sample), rgb), hit) in dirs.iter().zip(samples).zip(rgb).zip(hits) {
             let (seen, distance_mm) = match sample {
-                BoardSample::Board { distance_mm, grey } => {
-                    ([grey, grey, grey * 0.97], distance_mm)
-                }
+                BoardSample::Board { distance_mm, grey } => (board_grey_rgb(grey), distance_mm),
                 BoardSample::Off => self.wall_near(origin, dir, &mut recent),
                 BoardSample::Undecided => {
                     self.board_or_wall(origin, &board_origin, dir, &mut recent)

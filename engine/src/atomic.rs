@@ -27,3 +27,51 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> io::Result<()> {
     }
     result.map_err(named)
 }
+
+/// As [`write_atomically`], but a file that already holds exactly `bytes`
+/// is left as it is (no new file, its times unchanged): most of a re-run's
+/// figures are those of the run before. Whether it wrote.
+pub fn write_if_changed(path: &Path, bytes: &[u8]) -> io::Result<bool> {
+    let same = std::fs::metadata(path).is_ok_and(|m| m.is_file() && m.len() == bytes.len() as u64)
+        && std::fs::read(path).is_ok_and(|held| held == bytes);
+    if same {
+        return Ok(false);
+    }
+    write_atomically(path, bytes).map(|()| true)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_unchanged_file_is_left_and_a_changed_one_replaced() {
+        let t = tempfile::tempdir().unwrap();
+        let path = t.path().join("figures/a.svg");
+        assert!(write_if_changed(&path, b"<svg/>").unwrap(), "a new file");
+        assert!(
+            !write_if_changed(&path, b"<svg/>").unwrap(),
+            "the same bytes"
+        );
+        assert!(
+            write_if_changed(&path, b"<svg />").unwrap(),
+            "one byte more"
+        );
+        assert!(
+            write_if_changed(&path, b"<svg!>").unwrap(),
+            "same length, other bytes"
+        );
+        assert_eq!(std::fs::read(&path).unwrap(), b"<svg!>");
+        // A folder in the file's place is an error naming it, as before.
+        let folder = t.path().join("figures/b.png");
+        std::fs::create_dir_all(&folder).unwrap();
+        let e = write_if_changed(&folder, b"png").unwrap_err();
+        assert!(e.to_string().contains("b.png"), "{e}");
+        let leftovers: Vec<_> = std::fs::read_dir(t.path().join("figures"))
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .filter(|n| n.ends_with(".tmp"))
+            .collect();
+        assert!(leftovers.is_empty(), "{leftovers:?}");
+    }
+}

@@ -133,35 +133,48 @@ pub fn run(
 
 /// Writes `report.json`, the nodes' figures under `figures/` and
 /// `report.html` into `out_dir`, each file whole or not at all (see
-/// [`crate::atomic::write_atomically`]). A file that cannot be written does not stop the
-/// others; the error names every one that failed.
+/// [`crate::atomic::write_atomically`]). Figures are written side by side,
+/// and one whose file already holds its bytes (a cached node's, re-run) is
+/// left as it is. A file that cannot be written does not stop the others;
+/// the error names every one that failed.
 pub fn write_report(
     report: &RunReport,
     references: &[Reference],
     out_dir: &Path,
 ) -> std::io::Result<()> {
-    let mut failures: Vec<std::io::Error> = Vec::new();
-    let mut write = |path: &Path, bytes: &[u8]| {
-        if let Err(e) = crate::atomic::write_atomically(path, bytes) {
+    use rayon::prelude::*;
+    let figures: Vec<(std::path::PathBuf, &[u8])> = report
+        .nodes
+        .iter()
+        .flat_map(|(id, node)| node.figures.iter().zip(figure_refs(id, node)))
+        .filter_map(|(figure, place)| {
+            let bytes = match &figure.data {
+                FigureData::Png(bytes) => bytes.as_slice(),
+                FigureData::Svg(text) => text.as_bytes(),
+                // Drawn by the page itself, from data inside it.
+                FigureData::Points3d { .. } => return None,
+            };
+            Some((out_dir.join(&place.file), bytes))
+        })
+        .collect();
+    // The page and the JSON are composed while the figures are written.
+    let (mut failures, (json, html)): (Vec<std::io::Error>, _) = rayon::join(
+        || {
+            figures
+                .par_iter()
+                .filter_map(|(path, bytes)| crate::atomic::write_if_changed(path, bytes).err())
+                .collect()
+        },
+        || {
+            let text = serde_json::to_string_pretty(&report.to_json()).expect("plain data");
+            (text + "\n", report_html(report, references))
+        },
+    );
+    for (name, text) in [("report.json", json), ("report.html", html)] {
+        if let Err(e) = crate::atomic::write_atomically(&out_dir.join(name), text.as_bytes()) {
             failures.push(e);
         }
-    };
-    for (id, node) in &report.nodes {
-        for (figure, place) in node.figures.iter().zip(figure_refs(id, node)) {
-            match &figure.data {
-                FigureData::Png(bytes) => write(&out_dir.join(&place.file), bytes),
-                FigureData::Svg(text) => write(&out_dir.join(&place.file), text.as_bytes()),
-                // Drawn by the page itself, from data inside it.
-                FigureData::Points3d { .. } => {}
-            }
-        }
     }
-    let text = serde_json::to_string_pretty(&report.to_json()).expect("plain data");
-    write(&out_dir.join("report.json"), (text + "\n").as_bytes());
-    write(
-        &out_dir.join("report.html"),
-        report_html(report, references).as_bytes(),
-    );
     match failures.len() {
         0 => Ok(()),
         _ => {

@@ -518,24 +518,48 @@ fn parents(fine: [usize; 3], coarse: [usize; 3], n: usize) -> impl Iterator<Item
     })
 }
 
-/// P^T r: the fine residual onto the coarse nodes.
+/// P^T r: the fine residual onto the coarse nodes, each coarse node's sum
+/// gathered from its fine children in ascending node order (the order the
+/// scatter over fine nodes, [`restrict_by_scatter`], adds them in: the
+/// same bits), the coarse nodes in parallel.
 fn restrict(fine: [usize; 3], coarse: [usize; 3], r: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
-    let mut out = vec![Vector3::zeros(); coarse.iter().product()];
-    for (n, rn) in r.iter().enumerate() {
-        for (c, w) in parents(fine, coarse, n) {
-            out[c] += rn * w;
-        }
-    }
-    out
+    // Along an axis, the fine nodes a coarse node `c` takes a share of:
+    // 2c - 1 and 2c + 1 half, 2c whole (those inside the fine lattice).
+    let children = |c: usize, axis: usize| {
+        [(2 * c).checked_sub(1), Some(2 * c), Some(2 * c + 1)]
+            .into_iter()
+            .zip([0.5, 1.0, 0.5])
+            .filter_map(move |(f, w)| f.filter(|&f| f < fine[axis]).map(|f| (f, w)))
+    };
+    (0..coarse.iter().product::<usize>())
+        .into_par_iter()
+        .with_min_len(64)
+        .map(|c| {
+            let [ci, cj, ck] = node_coords(coarse, c);
+            let mut sum = Vector3::zeros();
+            for (k, wz) in children(ck, 2) {
+                for (j, wy) in children(cj, 1) {
+                    for (i, wx) in children(ci, 0) {
+                        // The weight as `parents` forms it.
+                        sum += r[node_index(fine, [i, j, k])] * (wx * wy * wz);
+                    }
+                }
+            }
+            sum
+        })
+        .collect()
 }
 
-/// z += P e: the coarse correction onto the fine nodes.
+/// z += P e: the coarse correction onto the fine nodes (in parallel).
 fn prolong_add(fine: [usize; 3], coarse: [usize; 3], e: &[Vector3<f64>], z: &mut [Vector3<f64>]) {
-    for (n, zn) in z.iter_mut().enumerate() {
-        for (c, w) in parents(fine, coarse, n) {
-            *zn += e[c] * w;
-        }
-    }
+    z.par_iter_mut()
+        .with_min_len(256)
+        .enumerate()
+        .for_each(|(n, zn)| {
+            for (c, w) in parents(fine, coarse, n) {
+                *zn += e[c] * w;
+            }
+        });
 }
 
 /// A point term's position from its stencil on the finest lattice.
@@ -554,6 +578,41 @@ pub(super) fn term_at(
 mod tests {
     use super::super::lattice::runs;
     use super::*;
+
+    /// P^T r as a scatter over the fine nodes, in their order: the
+    /// definition [`restrict`]'s gather must give bit for bit.
+    fn restrict_by_scatter(
+        fine: [usize; 3],
+        coarse: [usize; 3],
+        r: &[Vector3<f64>],
+    ) -> Vec<Vector3<f64>> {
+        let mut out = vec![Vector3::zeros(); coarse.iter().product()];
+        for (n, rn) in r.iter().enumerate() {
+            for (c, w) in parents(fine, coarse, n) {
+                out[c] += rn * w;
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn restriction_gathers_the_scatter_bit_for_bit() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        // Odd and even sizes: an even one's coarse lattice reaches a node
+        // past its end.
+        for fine in [[18, 12, 17], [7, 6, 5], [3, 4, 3]] {
+            let coarse = coarser(fine);
+            let r = random_vectors(&mut rng, fine.iter().product());
+            let gathered = restrict(fine, coarse, &r);
+            let scattered = restrict_by_scatter(fine, coarse, &r);
+            let bits = |v: &[Vector3<f64>]| -> Vec<u64> {
+                v.iter()
+                    .flat_map(|x| x.iter().map(|c| c.to_bits()))
+                    .collect()
+            };
+            assert_eq!(bits(&gathered), bits(&scattered), "{fine:?}");
+        }
+    }
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 

@@ -309,7 +309,7 @@ impl<'a> Executor<'a> {
             inputs.0.insert(e.port.clone(), value.clone());
         }
 
-        if let Some(entry) = self.lookup(&node.id, node.op.spec(), &key) {
+        if let Some(entry) = self.lookup(&node.id, node.op.spec(), &key, PathCheck::Now) {
             return cached(entry);
         }
         // One process computes a key; others running the same key at the
@@ -431,7 +431,7 @@ impl<'a> Executor<'a> {
             match crate::lease::try_acquire(&path) {
                 Ok(crate::lease::Acquired::Held(lease)) => {
                     // The owner before us may have stored it just now.
-                    return match self.lookup(id, spec, key) {
+                    return match self.lookup(id, spec, key, PathCheck::Now) {
                         Some(entry) => Err(entry),
                         None => Ok(Some(lease)),
                     };
@@ -442,7 +442,7 @@ impl<'a> Executor<'a> {
                     return Ok(None);
                 }
             }
-            if let Some(entry) = self.lookup(id, spec, key) {
+            if let Some(entry) = self.lookup(id, spec, key, PathCheck::Now) {
                 return Err(entry);
             }
             if !told {
@@ -460,11 +460,13 @@ impl<'a> Executor<'a> {
 
     /// Each node's cached result, found before any node runs: from memory,
     /// or the meta of its disk entry; then the values of those a node that
-    /// computes reads (every one's with `keep_outputs`), read and checked.
-    /// One whose values fail their checks computes instead, and the nodes
-    /// it reads then need theirs: until none changes. So a cached node
-    /// whose readers are all cached too costs its meta alone, and every
-    /// value a node receives was verified before the run began.
+    /// computes reads (every one's with `keep_outputs`), read and checked,
+    /// and so are the files of the `Path` outputs it reads (see
+    /// [`Executor::drop_stale_paths`]). One whose values or files fail
+    /// their checks computes instead, and the nodes it reads then need
+    /// theirs: until none changes. So a cached node whose readers are all
+    /// cached too costs its meta alone, and every value a node receives was
+    /// verified before the run began.
     fn plan(&self) -> Vec<Option<Arc<CacheEntry>>> {
         use rayon::prelude::*;
         let n = self.graph.nodes.len();
@@ -472,6 +474,7 @@ impl<'a> Executor<'a> {
             .into_par_iter()
             .map(|i| self.lookup_meta(i))
             .collect();
+        let mut checked = BTreeSet::new();
         loop {
             let unread: Vec<usize> = (0..n)
                 .filter(|&i| planned[i].as_ref().is_some_and(|e| !e.on_disk.is_empty()))
@@ -481,19 +484,76 @@ impl<'a> Executor<'a> {
                 })
                 .collect();
             if unread.is_empty() {
+                if self.drop_stale_paths(&mut planned, &mut checked) {
+                    continue;
+                }
                 return planned;
             }
             let read: Vec<Option<Arc<CacheEntry>>> = unread
                 .par_iter()
                 .map(|&i| {
                     let node = &self.graph.nodes[i];
-                    self.lookup(&node.id, node.op.spec(), &self.keys[i])
+                    self.lookup(&node.id, node.op.spec(), &self.keys[i], PathCheck::Later)
                 })
                 .collect();
             for (i, entry) in unread.into_iter().zip(read) {
                 planned[i] = entry;
             }
         }
+    }
+
+    /// Checks the files of planned entries' `Path` outputs that a node that
+    /// computes reads (every one with `keep_outputs`) against the content
+    /// they were recorded with, side by side; `checked` holds the (node,
+    /// port)s already checked. An entry with one modified or deleted is
+    /// dropped: its node computes again, regenerating its files. Whether
+    /// any was. The others are left unread: a phantom's folders (46 MB)
+    /// need no reading in a run where only nodes after them compute.
+    fn drop_stale_paths(
+        &self,
+        planned: &mut [Option<Arc<CacheEntry>>],
+        checked: &mut BTreeSet<(usize, String)>,
+    ) -> bool {
+        use rayon::prelude::*;
+        let mut due: Vec<(usize, String)> = Vec::new();
+        for (i, entry) in planned.iter().enumerate() {
+            let Some(entry) = entry else { continue };
+            for (port, value) in &entry.outputs.0 {
+                let read = self.options.keep_outputs
+                    || self.successors[i].iter().any(|&s| {
+                        planned[s].is_none()
+                            && self.graph.nodes[s]
+                                .inputs
+                                .iter()
+                                .any(|e| e.from == i && &e.from_port == port)
+                    });
+                if matches!(value, crate::value::Value::Path(_))
+                    && read
+                    && checked.insert((i, port.clone()))
+                {
+                    due.push((i, port.clone()));
+                }
+            }
+        }
+        let stale: Vec<(usize, String)> = due
+            .par_iter()
+            .filter_map(|(i, port)| {
+                let entry = planned[*i].as_ref()?;
+                let one = std::collections::BTreeMap::from([(
+                    port.clone(),
+                    entry.outputs.0[port].clone(),
+                )]);
+                crate::op::paths_intact(&one, "output")
+                    .err()
+                    .map(|why| (*i, why))
+            })
+            .collect();
+        for (i, why) in &stale {
+            let id = &self.graph.nodes[*i].id;
+            tracing::info!(node = %id, "stale cache entry, recomputing: {why}");
+            planned[*i] = None;
+        }
+        !stale.is_empty()
     }
 
     /// Node `i`'s cached result with its values left on disk where the
@@ -505,7 +565,7 @@ impl<'a> Executor<'a> {
             return Some(entry);
         }
         let disk = self.options.cache.as_ref()?;
-        let entry = usable(&node.id, disk, key, disk.load_meta(key))?;
+        let entry = usable(&node.id, disk, key, disk.load_meta(key), PathCheck::Later)?;
         let spec = node.op.spec();
         let held = entry
             .outputs
@@ -530,13 +590,20 @@ impl<'a> Executor<'a> {
     }
 
     /// The cached result for `key`, from memory or disk; a corrupt or stale disk
-    /// entry is logged, removed and treated as missing.
-    fn lookup(&self, id: &str, spec: &crate::op::OpSpec, key: &NodeKey) -> Option<Arc<CacheEntry>> {
+    /// entry is logged, removed and treated as missing. `paths` says when
+    /// its `Path` outputs' files are checked.
+    fn lookup(
+        &self,
+        id: &str,
+        spec: &crate::op::OpSpec,
+        key: &NodeKey,
+        paths: PathCheck,
+    ) -> Option<Arc<CacheEntry>> {
         if let Some(entry) = self.memory.get(key) {
             return Some(entry);
         }
         let disk = self.options.cache.as_ref()?;
-        let entry = usable(id, disk, key, disk.load(key))?;
+        let entry = usable(id, disk, key, disk.load(key), paths)?;
         if let Err(why) = check_outputs(spec, &entry.outputs.0) {
             tracing::warn!(node = %id, "cache entry does not fit the op, recomputing: {why}");
             disk.remove(key);
@@ -548,10 +615,27 @@ impl<'a> Executor<'a> {
     }
 }
 
+/// When a cached entry's `Path` outputs are checked against the content
+/// they were recorded with.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum PathCheck {
+    /// On lookup: the entry is about to be used.
+    Now,
+    /// Before the run, those a node that computes reads
+    /// ([`Executor::drop_stale_paths`]).
+    Later,
+}
+
 /// The entry a disk lookup of `key` (node `id`) found, if it is whole and
-/// its files are as recorded: a corrupt entry is logged and removed, a stale
-/// one logged, and either treated as missing.
-fn usable(id: &str, disk: &DiskCache, key: &NodeKey, found: Lookup) -> Option<CacheEntry> {
+/// (checked `Now`) its files are as recorded: a corrupt entry is logged and
+/// removed, a stale one logged, and either treated as missing.
+fn usable(
+    id: &str,
+    disk: &DiskCache,
+    key: &NodeKey,
+    found: Lookup,
+    paths: PathCheck,
+) -> Option<CacheEntry> {
     let entry = match found {
         Lookup::Hit(entry) => entry,
         Lookup::Miss => return None,
@@ -561,7 +645,9 @@ fn usable(id: &str, disk: &DiskCache, key: &NodeKey, found: Lookup) -> Option<Ca
             return None;
         }
     };
-    if let Err(why) = entry.paths_intact() {
+    if paths == PathCheck::Now
+        && let Err(why) = entry.paths_intact()
+    {
         tracing::info!(node = %id, "stale cache entry, recomputing: {why}");
         return None;
     }

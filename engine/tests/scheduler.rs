@@ -599,6 +599,59 @@ fn generated_files_live_in_the_cache_under_the_node_key() {
 }
 
 #[test]
+fn a_cached_nodes_files_are_checked_when_a_node_that_runs_reads_them() {
+    // What a re-run after a late parameter does: the phantom's folders are
+    // not read again while only nodes after their readers compute.
+    let t = tempfile::tempdir().unwrap();
+    let (reg, counters) = registry();
+    let g = write_graph(
+        t.path(),
+        "g.toml",
+        "[node.gen]\nop = \"test.generate\"\nfiles = 3\n\n\
+         [node.count]\nop = \"test.count_bytes\"\nin.dir = \"gen.dir\"\n\n\
+         [node.one]\nop = \"test.source\"\nvalue = 1.0\n\n\
+         [node.add]\nop = \"test.add\"\nin.a = \"count.bytes\"\nin.b = \"one.value\"\n",
+    );
+    let (cache, out) = (t.path().join("cache"), t.path().join("out"));
+    let run = |sets: &[&str]| {
+        run_with(
+            &reg,
+            &g,
+            sets,
+            Some(&cache),
+            &out,
+            &MemoryCache::new(),
+            false,
+        )
+    };
+    let sum = |outcome: &RunOutcome| outcome.report.node("add").unwrap().metrics["sum"];
+    let first = run(&[]);
+    assert_eq!(sum(&first), 21.0 + 1.0, "3 x \"slice N\", and one");
+    let dir = cache
+        .join(format!(
+            "v{}/files",
+            fusegraph_engine::cache::FORMAT_VERSION
+        ))
+        .join(&first.report.node("gen").unwrap().key)
+        .join("series");
+    std::fs::write(dir.join("slice0.txt"), "edited, longer").unwrap();
+    // Only a node after the folder's reader runs: the folder is not read.
+    let later = run(&["one.value=2.0"]);
+    assert_eq!(with_status(&later, Ran), ["add", "one"]);
+    assert_eq!(sum(&later), 21.0 + 2.0);
+    assert_eq!(counters.runs("gen"), 1);
+    // Its reader runs: the edit is found, the folder made again, and the
+    // reader sees what the key stands for.
+    let read = run(&["one.value=2.0", "count.label=again"]);
+    assert_eq!(with_status(&read, Ran), ["add", "count", "gen"]);
+    assert_eq!(sum(&read), 21.0 + 2.0);
+    assert_eq!(
+        std::fs::read_to_string(dir.join("slice0.txt")).unwrap(),
+        "slice 0"
+    );
+}
+
+#[test]
 fn a_moved_cache_reads_its_own_files_and_recomputes_nothing() {
     let t = tempfile::tempdir().unwrap();
     let (reg, counters) = registry();

@@ -205,6 +205,23 @@ pub fn registry() -> (Registry, Arc<Counters>) {
         }),
     );
     add(
+        OpSpec::new("test.count_bytes", 1, "The bytes in a folder's files")
+            .input("dir", &[ValueType::Path], "The folder")
+            .param(ParamSpec::string("label", "", "Changes the key alone"))
+            .output("bytes", ValueType::Scalar, "Their bytes"),
+        Box::new(|i, _, _, _| {
+            let dir = &i.get::<fusegraph_engine::value::PathValue>("dir")?.path;
+            let mut bytes = 0;
+            for entry in std::fs::read_dir(dir).map_err(|e| OpError::io(dir, e))? {
+                let path = entry.map_err(|e| OpError::io(dir, e))?.path();
+                bytes += std::fs::read(&path)
+                    .map_err(|e| OpError::io(&path, e))?
+                    .len();
+            }
+            Ok(Outputs::new().with("bytes", bytes as f64))
+        }),
+    );
+    add(
         OpSpec::new(
             "test.count_then_lose",
             1,

@@ -45,6 +45,7 @@
 //! V-cycle (see [`multigrid`]), to its tolerance. Written here: no Rust
 //! crate registers surfaces nonrigidly.
 
+mod banded;
 mod lattice;
 mod multigrid;
 mod solver;

@@ -9,8 +9,8 @@
 //! stopped). Here each system is assembled (3 x 3 blocks between nodes at
 //! most one apart, or two along an axis) on the lattice and on coarser
 //! lattices (every other node, trilinear prolongation), and one V-cycle
-//! (a forward block Gauss-Seidel sweep down, a backward one up, a dense
-//! Cholesky on the coarsest) is the preconditioner: symmetric and positive
+//! (a forward block Gauss-Seidel sweep down, a backward one up, a band
+//! Cholesky on the coarsest, see [`super::banded`]) is the preconditioner: symmetric and positive
 //! definite, as conjugate gradients need.
 //!
 //! Coarse operators: a data row's coarse stencil is its trilinear stencil
@@ -22,7 +22,7 @@
 //! Written here: no Rust crate does geometric multigrid on a lattice.
 
 use super::lattice::{node_coords, node_index, stencil_position, trilinear_stencil};
-use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
+use nalgebra::{DMatrix, Matrix3, Vector3};
 use rayon::prelude::*;
 
 /// The couplings a block row holds: the 27 offsets of a node's cell
@@ -419,7 +419,7 @@ pub(super) struct Multigrid {
     coarsest: Option<Cholesky>,
 }
 
-type Cholesky = nalgebra::Cholesky<f64, nalgebra::Dyn>;
+type Cholesky = super::banded::BandedCholesky;
 
 impl Multigrid {
     /// The levels of a system on a lattice of `dims` nodes.
@@ -440,7 +440,7 @@ impl Multigrid {
             .map(|(l, &dims)| {
                 let matrix = BlockMatrix::assemble(dims, (1u64 << l) as f64, terms, regularisers);
                 let factor = (l == coarsest_level && matrix.nodes() <= DENSE_NODES)
-                    .then(|| nalgebra::Cholesky::new(matrix.dense()))
+                    .then(|| Cholesky::new(&matrix.dense()))
                     .flatten();
                 (Level { dims, matrix }, factor)
             })
@@ -465,11 +465,8 @@ impl Multigrid {
             let mut z = vec![Vector3::zeros(); r.len()];
             match &self.coarsest {
                 Some(cholesky) => {
-                    let b = DVector::from_iterator(
-                        3 * r.len(),
-                        r.iter().flat_map(|v| v.iter().copied()),
-                    );
-                    let x = cholesky.solve(&b);
+                    let mut x: Vec<f64> = r.iter().flat_map(|v| v.iter().copied()).collect();
+                    cholesky.solve_mut(&mut x);
                     for (n, zn) in z.iter_mut().enumerate() {
                         *zn = Vector3::new(x[3 * n], x[3 * n + 1], x[3 * n + 2]);
                     }

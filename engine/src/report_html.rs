@@ -49,14 +49,26 @@ fn status_name(s: NodeStatus) -> &'static str {
 }
 
 /// Base64 (standard alphabet, padded) of `bytes`, for data embedded in the page.
-fn base64(bytes: &[u8]) -> String {
+/// Appends `bytes` in base64 to `out`.
+fn base64_into(bytes: &[u8], out: &mut String) {
     use base64::Engine;
-    base64::engine::general_purpose::STANDARD.encode(bytes)
+    base64::engine::general_purpose::STANDARD.encode_string(bytes, out);
 }
 
 /// The page for `report`, with `references` beside our figures.
 pub fn report_html(report: &RunReport, references: &[Reference]) -> String {
-    let mut h = String::new();
+    // The point clouds' base64 is most of the page (megabytes): room for it
+    // up front, not a string doubled and copied while it grows.
+    let points_bytes: usize = report
+        .nodes
+        .iter()
+        .flat_map(|(_, n)| n.figures.iter())
+        .map(|f| match &f.data {
+            FigureData::Points3d { xyz, rgb } => 4 * xyz.len() + rgb.len(),
+            _ => 0,
+        })
+        .sum();
+    let mut h = String::with_capacity(points_bytes.div_ceil(3) * 4 + (1 << 18));
     let count = |s: NodeStatus| report.nodes.iter().filter(|(_, n)| n.status == s).count();
     let _ = write!(
         h,
@@ -155,10 +167,14 @@ pub fn report_html(report: &RunReport, references: &[Reference]) -> String {
                         let _ = write!(
                             h,
                             "<canvas class=\"view3d\" id=\"view{views}\" width=\"900\" height=\"600\" \
-                             data-xyz=\"{}\" data-rgb=\"{}\"></canvas>\
+                             data-xyz=\""
+                        );
+                        base64_into(&floats, &mut h);
+                        h.push_str("\" data-rgb=\"");
+                        base64_into(rgb, &mut h);
+                        h.push_str(
+                            "\"></canvas>\
                              <div class=\"hint\">drag to turn, wheel to zoom, double-click to reset</div>",
-                            base64(&floats),
-                            base64(rgb)
                         );
                         views += 1;
                     }
@@ -291,6 +307,12 @@ document.querySelectorAll('canvas.view3d').forEach(view);
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn base64(bytes: &[u8]) -> String {
+        let mut out = String::new();
+        base64_into(bytes, &mut out);
+        out
+    }
     use crate::figure::Figure;
     use crate::report::NodeReport;
 

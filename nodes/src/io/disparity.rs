@@ -231,9 +231,21 @@ pub fn finite_percentiles(data: &[f32], lo: f64, hi: f64) -> Option<(f64, f64)> 
     if v.is_empty() {
         return None;
     }
-    v.sort_by(f32::total_cmp);
-    let at = |q: f64| v[((q / 100.0) * (v.len() - 1) as f64).round() as usize] as f64;
-    Some((at(lo), at(hi)))
+    // The two ranks a sort would put there, found by selection (linear, not
+    // a sort of the whole map: each figure of a disparity map asks).
+    let rank = |q: f64| ((q / 100.0) * (v.len() - 1) as f64).round() as usize;
+    let (a, b) = (rank(lo), rank(hi));
+    let (first, second) = (a.min(b), a.max(b));
+    let (_, &mut low, rest) = v.select_nth_unstable_by(first, f32::total_cmp);
+    let high = if second == first {
+        low
+    } else {
+        *rest
+            .select_nth_unstable_by(second - first - 1, f32::total_cmp)
+            .1
+    };
+    let (at_a, at_b) = if a <= b { (low, high) } else { (high, low) };
+    Some((at_a as f64, at_b as f64))
 }
 
 /// Width of the legend strip right of the map, px.
@@ -312,6 +324,44 @@ pub fn disparity_png(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn percentiles_are_the_sorted_finite_values_ranks() {
+        let mut state = 17u32;
+        let mut next = || {
+            state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            state
+        };
+        for n in [1usize, 2, 3, 10, 101, 5000] {
+            let data: Vec<f32> = (0..n)
+                .map(|_| match next() % 9 {
+                    0 => f32::NAN,
+                    1 => f32::INFINITY,
+                    2 => (next() % 7) as f32, // ties
+                    _ => (next() % 100_000) as f32 / 37.0 - 900.0,
+                })
+                .collect();
+            let mut sorted: Vec<f32> = data.iter().copied().filter(|x| x.is_finite()).collect();
+            sorted.sort_by(f32::total_cmp);
+            for (lo, hi) in [(1.0, 99.0), (0.0, 100.0), (50.0, 50.0), (90.0, 10.0)] {
+                let expected = (!sorted.is_empty()).then(|| {
+                    let at = |q: f64| {
+                        sorted[((q / 100.0) * (sorted.len() - 1) as f64).round() as usize] as f64
+                    };
+                    (at(lo), at(hi))
+                });
+                assert_eq!(
+                    finite_percentiles(&data, lo, hi),
+                    expected,
+                    "n {n}, {lo}..{hi}"
+                );
+            }
+        }
+        assert_eq!(
+            finite_percentiles(&[f32::NAN, f32::NEG_INFINITY], 1.0, 99.0),
+            None
+        );
+    }
 
     fn temp_file(dir: &tempfile::TempDir, name: &str, bytes: &[u8]) -> std::path::PathBuf {
         let p = dir.path().join(name);

@@ -6,6 +6,7 @@
 use super::Nearest;
 use crate::stereo::{BlobParams, colour_mask};
 use nalgebra::Point3;
+use rayon::prelude::*;
 
 /// Which points to keep: those farther than `radius_mm` from every point
 /// whose colour (`rgb`, 3 bytes a point) passes `colour`'s HSV thresholds
@@ -26,7 +27,12 @@ pub fn away_from_colour(
         return vec![true; points.len()];
     };
     let r2 = radius_mm * radius_mm;
-    points.iter().map(|p| tree.nearest(p).1 > r2).collect()
+    // A search bounded by the radius: most of a skin lies far from every
+    // marker, and its searches end at the tree's first cells.
+    points
+        .par_iter()
+        .map(|p| tree.nearest_two_within(p, radius_mm).is_none_or(|((_, d2), _)| d2 > r2))
+        .collect()
 }
 
 #[cfg(test)]
@@ -50,5 +56,29 @@ mod tests {
         );
         let skin = [200, 160, 140].repeat(3);
         assert_eq!(away_from_colour(&points, &skin, &green, 5.0), [true; 3]);
+    }
+
+    #[test]
+    fn the_bounded_search_keeps_what_every_distance_says() {
+        // A cloud with a few green points among many others; points kept are
+        // exactly those farther than the radius from every green one.
+        let mut state = 5u64;
+        let mut next = || {
+            state = state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+            (state >> 33) as f64 / (1u64 << 31) as f64
+        };
+        let points: Vec<Point3<f64>> = (0..3000)
+            .map(|_| Point3::new(next() * 100.0, next() * 100.0, next() * 10.0))
+            .collect();
+        let rgb: Vec<u8> = (0..points.len())
+            .flat_map(|i| if i % 97 == 0 { [25, 184, 51] } else { [200, 160, 140] })
+            .collect();
+        let green: Vec<&Point3<f64>> = points.iter().step_by(97).collect();
+        let kept = away_from_colour(&points, &rgb, &BlobParams::default(), 6.0);
+        for (p, keep) in points.iter().zip(&kept) {
+            let far = green.iter().all(|g| (*g - p).norm_squared() > 36.0);
+            assert_eq!(*keep, far, "{p:?}");
+        }
+        assert!(kept.iter().filter(|k| !**k).count() > green.len());
     }
 }

@@ -31,7 +31,10 @@ pub fn away_from_colour(
     // marker, and its searches end at the tree's first cells.
     points
         .par_iter()
-        .map(|p| tree.nearest_two_within(p, radius_mm).is_none_or(|((_, d2), _)| d2 > r2))
+        .map(|p| {
+            tree.nearest_two_within(p, radius_mm)
+                .is_none_or(|((_, d2), _)| d2 > r2)
+        })
         .collect()
 }
 
@@ -64,14 +67,22 @@ mod tests {
         // exactly those farther than the radius from every green one.
         let mut state = 5u64;
         let mut next = || {
-            state = state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1);
             (state >> 33) as f64 / (1u64 << 31) as f64
         };
         let points: Vec<Point3<f64>> = (0..3000)
             .map(|_| Point3::new(next() * 100.0, next() * 100.0, next() * 10.0))
             .collect();
         let rgb: Vec<u8> = (0..points.len())
-            .flat_map(|i| if i % 97 == 0 { [25, 184, 51] } else { [200, 160, 140] })
+            .flat_map(|i| {
+                if i % 97 == 0 {
+                    [25, 184, 51]
+                } else {
+                    [200, 160, 140]
+                }
+            })
             .collect();
         let green: Vec<&Point3<f64>> = points.iter().step_by(97).collect();
         let kept = away_from_colour(&points, &rgb, &BlobParams::default(), 6.0);

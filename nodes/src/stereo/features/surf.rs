@@ -5,6 +5,7 @@
 
 use super::integral::Integral;
 use super::{Descriptors, Features, Keypoint, check_image, keep_strongest_spread};
+use crate::simd::{Isa, kernels};
 use rayon::prelude::*;
 use std::f64::consts::PI;
 use std::sync::OnceLock;
@@ -52,6 +53,12 @@ struct Layer {
 
 impl Layer {
     fn compute(ii: &Integral, size: i64, step: i64) -> Layer {
+        Self::compute_with(ii, size, step, true)
+    }
+
+    /// [`Layer::compute`], the runs inside the image by [`Isa::hessian_run`]
+    /// or (`runs` false, for tests) pixel by pixel.
+    fn compute_with(ii: &Integral, size: i64, step: i64, runs: bool) -> Layer {
         let cols = ii.width().div_ceil(step as usize);
         let rows = ii.height().div_ceil(step as usize);
         let mut response = vec![0.0f32; cols * rows];
@@ -95,6 +102,49 @@ impl Layer {
                 .sum()
         };
         let (w, h) = (ii.width() as i64, ii.height() as i64);
+        let isa = Isa::detect();
+        let offsets: [[i64; 4]; 8] = [
+            dxx_boxes[0].0,
+            dxx_boxes[1].0,
+            dyy_boxes[0].0,
+            dyy_boxes[1].0,
+            dxy_boxes[0].0,
+            dxy_boxes[1].0,
+            dxy_boxes[2].0,
+            dxy_boxes[3].0,
+        ];
+        let weights = [
+            dxx_boxes[0].1,
+            dxx_boxes[1].1,
+            dyy_boxes[0].1,
+            dyy_boxes[1].1,
+            dxy_boxes[0].1,
+            dxy_boxes[1].1,
+            dxy_boxes[2].1,
+            dxy_boxes[3].1,
+        ];
+        let pixel = |x: i64, y: i64, inside_y: bool| -> (f32, bool) {
+            let (dxx, dyy, dxy) = if inside_y && x >= b && x <= w - 1 - b {
+                let base = y * stride + x;
+                (
+                    apply(base, &dxx_boxes),
+                    apply(base, &dyy_boxes),
+                    apply(base, &dxy_boxes),
+                )
+            } else {
+                (
+                    ii.box_sum(x - b, y - l + 1, size, 2 * l - 1)
+                        - 3.0 * ii.box_sum(x - l / 2, y - l + 1, l, 2 * l - 1),
+                    ii.box_sum(x - l + 1, y - b, 2 * l - 1, size)
+                        - 3.0 * ii.box_sum(x - l + 1, y - l / 2, 2 * l - 1, l),
+                    ii.box_sum(x + 1, y - l, l, l) + ii.box_sum(x - l, y + 1, l, l)
+                        - ii.box_sum(x - l, y - l, l, l)
+                        - ii.box_sum(x + 1, y + 1, l, l),
+                )
+            };
+            let (dxx, dyy, dxy) = (dxx * norm, dyy * norm, dxy * norm);
+            ((dxx * dyy - 0.81 * dxy * dxy) as f32, dxx + dyy >= 0.0)
+        };
         response
             .par_chunks_mut(cols)
             .zip(laplacian_positive.par_chunks_mut(cols))
@@ -102,29 +152,27 @@ impl Layer {
             .for_each(|(r, (resp, lap))| {
                 let y = r as i64 * step;
                 let inside_y = y >= b && y <= h - 1 - b;
-                for c in 0..cols {
-                    let x = c as i64 * step;
-                    let (dxx, dyy, dxy) = if inside_y && x >= b && x <= w - 1 - b {
-                        let base = y * stride + x;
-                        (
-                            apply(base, &dxx_boxes),
-                            apply(base, &dyy_boxes),
-                            apply(base, &dxy_boxes),
-                        )
-                    } else {
-                        (
-                            ii.box_sum(x - b, y - l + 1, size, 2 * l - 1)
-                                - 3.0 * ii.box_sum(x - l / 2, y - l + 1, l, 2 * l - 1),
-                            ii.box_sum(x - l + 1, y - b, 2 * l - 1, size)
-                                - 3.0 * ii.box_sum(x - l + 1, y - l / 2, 2 * l - 1, l),
-                            ii.box_sum(x + 1, y - l, l, l) + ii.box_sum(x - l, y + 1, l, l)
-                                - ii.box_sum(x - l, y - l, l, l)
-                                - ii.box_sum(x + 1, y + 1, l, l),
-                        )
-                    };
-                    let (dxx, dyy, dxy) = (dxx * norm, dyy * norm, dxy * norm);
-                    resp[c] = (dxx * dyy - 0.81 * dxy * dxy) as f32;
-                    lap[c] = dxx + dyy >= 0.0;
+                // At step 1 the filters that lie inside the image, a run of
+                // the row, are one kernel over the table's rows (the same
+                // operations per pixel as `pixel`).
+                let run = if runs && inside_y && step == 1 && b <= w - 1 - b {
+                    b as usize..(w - b) as usize
+                } else {
+                    0..0
+                };
+                if !run.is_empty() {
+                    isa.hessian_run(
+                        table,
+                        (y * stride + run.start as i64) as usize,
+                        &offsets,
+                        &weights,
+                        norm,
+                        &mut resp[run.clone()],
+                        &mut lap[run.clone()],
+                    );
+                }
+                for c in (0..cols).filter(|c| !run.contains(c)) {
+                    (resp[c], lap[c]) = pixel(c as i64 * step, y, inside_y);
                 }
             });
         Layer {
@@ -140,6 +188,44 @@ impl Layer {
     #[inline]
     fn at(&self, c: i64, r: i64) -> f64 {
         self.response[r as usize * self.cols + c as usize] as f64
+    }
+}
+
+kernels! {
+    /// A Hessian layer's responses along a run of one row where every filter
+    /// lies inside the image, at step 1: `start` is the table entry of the
+    /// run's first pixel, `offsets` the eight boxes' corners from it (the
+    /// two of dxx, the two of dyy, the four of dxy) and `weights` theirs;
+    /// each pixel computed by [`Layer::compute`]'s per-pixel operations in
+    /// their order, so the same bits, several pixels at once.
+    fn hessian_run(
+        table: &[f64],
+        start: usize,
+        offsets: &[[i64; 4]; 8],
+        weights: &[f64; 8],
+        norm: f64,
+        response: &mut [f32],
+        laplacian_positive: &mut [bool],
+    ) {
+        let n = response.len().min(laplacian_positive.len());
+        let corners: [[&[f64]; 4]; 8] = std::array::from_fn(|k| {
+            std::array::from_fn(|j| {
+                let from = (start as i64 + offsets[k][j]) as usize;
+                &table[from..from + n]
+            })
+        });
+        for i in 0..n {
+            let t = |k: usize| {
+                let c = &corners[k];
+                weights[k] * (c[0][i] - c[1][i] - c[2][i] + c[3][i])
+            };
+            let dxx = t(0) + t(1);
+            let dyy = t(2) + t(3);
+            let dxy = t(4) + t(5) + t(6) + t(7);
+            let (dxx, dyy, dxy) = (dxx * norm, dyy * norm, dxy * norm);
+            response[i] = (dxx * dyy - 0.81 * dxy * dxy) as f32;
+            laplacian_positive[i] = dxx + dyy >= 0.0;
+        }
     }
 }
 
@@ -373,6 +459,36 @@ pub fn detect_hessian(
 mod tests {
     use super::*;
     use crate::stereo::features::test_images::{blob_texture, gaussian_blob_image};
+
+    #[test]
+    fn layers_by_runs_have_the_per_pixel_bits() {
+        // Every layer of the four octaves, on an image both wider and
+        // narrower than the filters: grey levels of every magnitude (so the
+        // table's sums round, and a reordered sum shows) and a flat part.
+        let (w, h) = (203, 61);
+        let grey: Vec<f32> = (0..w * h)
+            .map(|i| {
+                let noise = ((i as f64 * 12.9898).sin() * 43_758.545_3).fract().abs();
+                let scale = 10f64.powi((i % 9) as i32 - 6);
+                if i % w > 150 {
+                    0.25
+                } else {
+                    (noise * scale) as f32
+                }
+            })
+            .collect();
+        let ii = Integral::new(&grey, w, h);
+        for o in 0..4 {
+            for i in 0..4 {
+                let (size, step) = (filter_size(o, i), 1i64 << o);
+                let runs = Layer::compute_with(&ii, size, step, true);
+                let pixels = Layer::compute_with(&ii, size, step, false);
+                let bits = |l: &Layer| l.response.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&runs), bits(&pixels), "octave {o}, layer {i}");
+                assert_eq!(runs.laplacian_positive, pixels.laplacian_positive);
+            }
+        }
+    }
 
     #[test]
     fn filter_sizes_follow_bay() {

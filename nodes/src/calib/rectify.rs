@@ -5,7 +5,7 @@
 //! (1). And remapping an image through it, with bilinear interpolation.
 
 use crate::camera::CameraModel;
-use crate::numeric::floor_usize;
+use crate::numeric::{floor_usize, round_to_u8};
 use nalgebra::{Isometry3, Matrix3, Matrix3x4, Matrix4, Point2, Rotation3, Vector3};
 use rayon::prelude::*;
 
@@ -198,7 +198,7 @@ pub fn remap(
                     let s = |x: usize, y: usize| src[(y * sw + x) * channels + c] as f64;
                     let v = (s(x0, y0) * (1.0 - tx) + s(x1, y0) * tx) * (1.0 - ty)
                         + (s(x0, y1) * (1.0 - tx) + s(x1, y1) * tx) * ty;
-                    row[u * channels + c] = v.round().clamp(0.0, 255.0) as u8;
+                    row[u * channels + c] = round_to_u8(v);
                 }
             }
         });

@@ -65,13 +65,9 @@ mod tests {
     fn the_bounded_search_keeps_what_every_distance_says() {
         // A cloud with a few green points among many others; points kept are
         // exactly those farther than the radius from every green one.
-        let mut state = 5u64;
-        let mut next = || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1);
-            (state >> 33) as f64 / (1u64 << 31) as f64
-        };
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let mut next = || rng.random::<f64>();
         let points: Vec<Point3<f64>> = (0..3000)
             .map(|_| Point3::new(next() * 100.0, next() * 100.0, next() * 10.0))
             .collect();

@@ -535,7 +535,8 @@ impl<'a> Executor<'a> {
                 }
             }
         }
-        let stale: Vec<(usize, String)> = due
+        // One log line a node, whichever of its stale ports it names.
+        let stale: std::collections::BTreeMap<usize, String> = due
             .par_iter()
             .filter_map(|(i, port)| {
                 let entry = planned[*i].as_ref()?;
@@ -548,10 +549,10 @@ impl<'a> Executor<'a> {
                     .map(|why| (*i, why))
             })
             .collect();
-        for (i, why) in &stale {
-            let id = &self.graph.nodes[*i].id;
+        for (&i, why) in &stale {
+            let id = &self.graph.nodes[i].id;
             tracing::info!(node = %id, "stale cache entry, recomputing: {why}");
-            planned[*i] = None;
+            planned[i] = None;
         }
         !stale.is_empty()
     }

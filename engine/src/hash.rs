@@ -3,10 +3,11 @@
 //! live, so moving a project does not invalidate its cache.
 //!
 //! A folder's files are read a batch at a time in parallel and hashed in
-//! their fixed order with blake3's multithreaded update: a phantom's folder
-//! (46 MB) is checked at the start of every run that uses it. blake3 gives
-//! the same hash however a stream is split into updates, so the hash is the
-//! one a plain sequential read gives (a test keeps that definition).
+//! their fixed order with blake3's multithreaded update: a phantom's folders
+//! (46 MB) are hashed once made, and again in every run in which a node that
+//! runs reads them. blake3 gives the same hash however a stream is split
+//! into updates, so the hash is the one a plain sequential read gives (a
+//! test keeps that definition).
 
 use rayon::prelude::*;
 use std::io::{self, Read};

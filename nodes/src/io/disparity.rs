@@ -327,11 +327,9 @@ mod tests {
 
     #[test]
     fn percentiles_are_the_sorted_finite_values_ranks() {
-        let mut state = 17u32;
-        let mut next = || {
-            state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-            state
-        };
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
+        let mut next = || rng.random::<u32>();
         for n in [1usize, 2, 3, 10, 101, 5000] {
             let data: Vec<f32> = (0..n)
                 .map(|_| match next() % 9 {

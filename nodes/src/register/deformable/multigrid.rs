@@ -10,8 +10,8 @@
 //! most one apart, or two along an axis) on the lattice and on coarser
 //! lattices (every other node, trilinear prolongation), and one V-cycle
 //! (a forward block Gauss-Seidel sweep down, a backward one up, a band
-//! Cholesky on the coarsest, see [`super::banded`]) is the preconditioner: symmetric and positive
-//! definite, as conjugate gradients need.
+//! Cholesky on the coarsest, see [`super::banded`]) is the preconditioner:
+//! symmetric and positive definite, as conjugate gradients need.
 //!
 //! Coarse operators: a data row's coarse stencil is its trilinear stencil
 //! on the coarse lattice, which is exactly the Galerkin product P^T A P (a

@@ -77,15 +77,12 @@ impl Layer {
                 y0 * stride + x0,
             ]
         };
-        let dxx_boxes = [
+        // The two boxes of dxx, the two of dyy, the four of dxy.
+        let boxes: [([i64; 4], f64); 8] = [
             (corners(-b, -l + 1, size, 2 * l - 1), 1.0),
             (corners(-l / 2, -l + 1, l, 2 * l - 1), -3.0),
-        ];
-        let dyy_boxes = [
             (corners(-l + 1, -b, 2 * l - 1, size), 1.0),
             (corners(-l + 1, -l / 2, 2 * l - 1, l), -3.0),
-        ];
-        let dxy_boxes = [
             (corners(1, -l, l, l), 1.0),
             (corners(-l, 1, l, l), 1.0),
             (corners(-l, -l, l, l), -1.0),
@@ -103,33 +100,13 @@ impl Layer {
         };
         let (w, h) = (ii.width() as i64, ii.height() as i64);
         let isa = Isa::detect();
-        let offsets: [[i64; 4]; 8] = [
-            dxx_boxes[0].0,
-            dxx_boxes[1].0,
-            dyy_boxes[0].0,
-            dyy_boxes[1].0,
-            dxy_boxes[0].0,
-            dxy_boxes[1].0,
-            dxy_boxes[2].0,
-            dxy_boxes[3].0,
-        ];
-        let weights = [
-            dxx_boxes[0].1,
-            dxx_boxes[1].1,
-            dyy_boxes[0].1,
-            dyy_boxes[1].1,
-            dxy_boxes[0].1,
-            dxy_boxes[1].1,
-            dxy_boxes[2].1,
-            dxy_boxes[3].1,
-        ];
         let pixel = |x: i64, y: i64, inside_y: bool| -> (f32, bool) {
             let (dxx, dyy, dxy) = if inside_y && x >= b && x <= w - 1 - b {
                 let base = y * stride + x;
                 (
-                    apply(base, &dxx_boxes),
-                    apply(base, &dyy_boxes),
-                    apply(base, &dxy_boxes),
+                    apply(base, &boxes[..2]),
+                    apply(base, &boxes[2..4]),
+                    apply(base, &boxes[4..]),
                 )
             } else {
                 (
@@ -164,8 +141,7 @@ impl Layer {
                     isa.hessian_run(
                         table,
                         (y * stride + run.start as i64) as usize,
-                        &offsets,
-                        &weights,
+                        &boxes,
                         norm,
                         &mut resp[run.clone()],
                         &mut lap[run.clone()],
@@ -194,15 +170,14 @@ impl Layer {
 kernels! {
     /// A Hessian layer's responses along a run of one row where every filter
     /// lies inside the image, at step 1: `start` is the table entry of the
-    /// run's first pixel, `offsets` the eight boxes' corners from it (the
-    /// two of dxx, the two of dyy, the four of dxy) and `weights` theirs;
+    /// run's first pixel, `boxes` the eight boxes' corners from it with
+    /// their weights (the two of dxx, the two of dyy, the four of dxy);
     /// each pixel computed by [`Layer::compute`]'s per-pixel operations in
     /// their order, so the same bits, several pixels at once.
     fn hessian_run(
         table: &[f64],
         start: usize,
-        offsets: &[[i64; 4]; 8],
-        weights: &[f64; 8],
+        boxes: &[([i64; 4], f64); 8],
         norm: f64,
         response: &mut [f32],
         laplacian_positive: &mut [bool],
@@ -210,14 +185,14 @@ kernels! {
         let n = response.len().min(laplacian_positive.len());
         let corners: [[&[f64]; 4]; 8] = std::array::from_fn(|k| {
             std::array::from_fn(|j| {
-                let from = (start as i64 + offsets[k][j]) as usize;
+                let from = (start as i64 + boxes[k].0[j]) as usize;
                 &table[from..from + n]
             })
         });
         for i in 0..n {
             let t = |k: usize| {
                 let c = &corners[k];
-                weights[k] * (c[0][i] - c[1][i] - c[2][i] + c[3][i])
+                boxes[k].1 * (c[0][i] - c[1][i] - c[2][i] + c[3][i])
             };
             let dxx = t(0) + t(1);
             let dyy = t(2) + t(3);
@@ -464,7 +439,8 @@ mod tests {
     fn layers_by_runs_have_the_per_pixel_bits() {
         // Every layer of the four octaves, on an image both wider and
         // narrower than the filters: grey levels of every magnitude (so the
-        // table's sums round, and a reordered sum shows) and a flat part.
+        // table's sums round) and a flat part. The responses are f32, so a
+        // reordered f64 sum seldom shows; a wrong box or weight does.
         let (w, h) = (203, 61);
         let grey: Vec<f32> = (0..w * h)
             .map(|i| {

@@ -20,6 +20,7 @@ pub mod ops;
 mod props;
 mod render;
 mod rig;
+mod row_materials;
 mod scenes;
 mod sensor;
 mod shape;

@@ -2,6 +2,7 @@
 //! where a voxel straddles a boundary), a smooth multiplicative bias field and
 //! Rician noise, on an axial (optionally oblique) grid in patient LPS mm.
 
+use super::row_materials::RowMaterials;
 use super::shape::{Material, PhantomShape};
 use fusegraph_engine::value::Grid;
 use nalgebra::{Isometry3, Point3, Rotation3, Vector3};
@@ -120,6 +121,14 @@ pub fn synthesize(
     let near_row = |(from, to): (f64, f64), j: f64, k: f64, margin_mm: f64| {
         shape.near_segment(&at_voxel(from, j, k), &at_voxel(to, j, k), margin_mm)
     };
+    // The line of positions (j, k) from i = `from` (t = 0) by `count`
+    // unit steps, which the materials along the row are classified by
+    // where no part is near (the positions stray from it by rounding only).
+    let row_line = |from: f64, count: usize, j: f64, k: f64| {
+        let start = at_voxel(from, j, k);
+        let step = (at_voxel(from + count as f64, j, k) - start) / count.max(1) as f64;
+        (start, step)
+    };
     // Materials at voxel corners, to find the voxels that straddle a boundary.
     let (cx, cy) = (nx + 1, ny + 1);
     let corners: Vec<Material> = (0..nz + 1)
@@ -129,8 +138,10 @@ pub fn synthesize(
             (0..cy).flat_map(move |j| {
                 let j = j as f64 - 0.5;
                 let near = near_row((-0.5, nx as f64 - 0.5), j, k, ROUNDING_MM);
+                let (start, step) = row_line(-0.5, nx, j, k);
+                let row = RowMaterials::new(shape, &near, (&start, &step), nx as f64, ROUNDING_MM);
                 (0..cx)
-                    .map(|i| near.material_at(&at_voxel(i as f64 - 0.5, j, k)))
+                    .map(|i| row.material_at(i as f64, || at_voxel(i as f64 - 0.5, j, k)))
                     .collect::<Vec<_>>()
             })
         })
@@ -151,13 +162,17 @@ pub fn synthesize(
                 ChaCha8Rng::seed_from_u64(p.seed ^ (k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
             for j in 0..ny {
                 let near = near_row((0.0, (nx - 1) as f64), j as f64, k as f64, half_diagonal_mm);
+                let (start, step) = row_line(0.0, nx - 1, j as f64, k as f64);
+                let span = (nx - 1) as f64;
+                let row = RowMaterials::new(shape, &near, (&start, &step), span, ROUNDING_MM);
                 let material_at_voxel =
                     |i: f64, j: f64, k: f64| near.material_at(&at_voxel(i, j, k));
                 for i in 0..nx {
                     let c0 = corner(i, j, k);
+                    let centre = at_voxel(i as f64, j as f64, k as f64);
                     let pure = (0..8)
                         .all(|b| corner(i + (b & 1), j + ((b >> 1) & 1), k + (b >> 2)) == c0)
-                        && material_at_voxel(i as f64, j as f64, k as f64) == c0;
+                        && row.material_at(i as f64, || centre) == c0;
                     let clean = if pure {
                         signal_of(c0, shape.lesion_signal)
                     } else {
@@ -178,7 +193,6 @@ pub fn synthesize(
                         }
                         sum / (n * n * n) as f32
                     };
-                    let centre = at_voxel(i as f64, j as f64, k as f64);
                     let s = clean as f64 * bias.at(&centre);
                     let (re, im) = (s + noise.sample(&mut rng), noise.sample(&mut rng));
                     slice[i + nx * j] = (re * re + im * im).sqrt() as f32;

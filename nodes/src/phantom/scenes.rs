@@ -15,6 +15,7 @@ use super::texture::{RecentCell, ValueNoise};
 use crate::numeric::floor_i64;
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use std::cell::Cell;
+use std::cell::RefCell;
 
 /// A chessboard of `cols x rows` inner corners (OpenCV's pattern size), squares
 /// `square_mm` across, white border `margin_mm` wide. Board frame: x along the
@@ -192,16 +193,23 @@ impl Scene for ChessboardScene {
         };
         let samples = board_row(&self.world_to_board.0, &board_origin, dirs, &pattern);
         let mut recent = RecentCell::default();
+        // Each arm stores its own answer: a colour built on the stack in
+        // one arm and copied out after the match was read back with wider
+        // loads than its stores (a store-forwarding stall a pixel).
         for (((dir, sample), rgb), hit) in dirs.iter().zip(samples).zip(rgb).zip(hits) {
-            let (seen, distance_mm) = match sample {
-                BoardSample::Board { distance_mm, grey } => (board_grey_rgb(grey), distance_mm),
-                BoardSample::Off => self.wall_near(origin, dir, &mut recent),
-                BoardSample::Undecided => {
-                    self.board_or_wall(origin, &board_origin, dir, &mut recent)
-                }
+            let mut store = |(seen, distance_mm): ([f32; 3], f64)| {
+                *rgb = seen;
+                *hit = (distance_mm, None);
             };
-            *rgb = seen;
-            *hit = (distance_mm, None);
+            match sample {
+                BoardSample::Board { distance_mm, grey } => {
+                    store((board_grey_rgb(grey), distance_mm))
+                }
+                BoardSample::Off => store(self.wall_near(origin, dir, &mut recent)),
+                BoardSample::Undecided => {
+                    store(self.board_or_wall(origin, &board_origin, dir, &mut recent))
+                }
+            }
         }
     }
 
@@ -376,7 +384,7 @@ impl PhantomScene {
         let cast = (None, &reached);
         let on_table = |lamps| {
             let p = origin + dir * table_t;
-            let t = noise.fractal(&p, 1.0 / 3.0, 2);
+            let t = with_recent_cells(|recent| noise.fractal_near(&p, 1.0 / 3.0, &mut recent[..2]));
             let rgb = self.shade(CLOTH, 0.6 + 0.5 * t, (p, Vector3::z(), dir), false, lamps);
             seen(rgb, table_t, self.key(Kind::Table, reached.get()))
         };
@@ -410,7 +418,9 @@ impl PhantomScene {
                 Surface::Skin => {
                     // Fine random texture: 0.5 mm to 2 mm features, its
                     // contrast as asked (0.55 + 0.6 t for the ideal phantom).
-                    let t = noise.fractal(&p, 1.0 / 1.6, 3);
+                    let t = with_recent_cells(|recent| {
+                        noise.fractal_near(&p, 1.0 / 1.6, &mut recent[..3])
+                    });
                     let k = self.skin_texture;
                     let rgb = self.shade(SKIN, 0.55 + (0.6 - k) / 2.0 + k * t, at, true, known);
                     return seen(rgb, hit.t, self.key(Kind::Skin, reached.get()));
@@ -433,6 +443,20 @@ impl PhantomScene {
         (self.lighting.lamps.len() <= KEYED_LAMPS)
             .then_some(lit_lamps | (kind as u32) << KEYED_LAMPS)
     }
+}
+
+thread_local! {
+    /// The skin's and the table's noise cells met last on this thread, one
+    /// an octave: a row's rays (and a row's corner rays) meet one coarse
+    /// cell several times running. The cells hold their noise's seed, so
+    /// any scene or image may share them.
+    static RECENT_CELLS: RefCell<[RecentCell; 3]> =
+        const { RefCell::new([RecentCell::EMPTY, RecentCell::EMPTY, RecentCell::EMPTY]) };
+}
+
+/// `f` with this thread's [`RECENT_CELLS`].
+fn with_recent_cells<T>(f: impl FnOnce(&mut [RecentCell; 3]) -> T) -> T {
+    RECENT_CELLS.with_borrow_mut(f)
 }
 
 /// The lamps a key can tell apart.

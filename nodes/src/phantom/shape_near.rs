@@ -55,6 +55,23 @@ impl ShapeNear<'_> {
             p,
         )
     }
+
+    /// A ball around each marker and lesion kept (centre, radius; phantom
+    /// frame, mm) outside which the part holds no point: there a point's
+    /// material is the dome's alone.
+    pub fn part_spheres(&self) -> impl Iterator<Item = (Point3<f64>, f64)> + '_ {
+        let markers = self.markers.iter().map(|m| {
+            (
+                Point3::from(m.skin_point_mm),
+                m.bounding_radius_squared().sqrt(),
+            )
+        });
+        let lesions = self
+            .lesions
+            .iter()
+            .map(|l| (Point3::from(l.center_mm), l.radius_mm));
+        markers.chain(lesions)
+    }
 }
 
 /// Distance from `p` to the segment from `a` to `b`, mm.

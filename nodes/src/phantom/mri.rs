@@ -165,8 +165,9 @@ pub fn synthesize(
                 let (start, step) = row_line(0.0, nx - 1, j as f64, k as f64);
                 let span = (nx - 1) as f64;
                 let row = RowMaterials::new(shape, &near, (&start, &step), span, ROUNDING_MM);
-                let material_at_voxel =
-                    |i: f64, j: f64, k: f64| near.material_at(&at_voxel(i, j, k));
+                // The rows of sub-samples (dj, dk) along the voxels, from i =
+                // -1/2 (t = 0), once a voxel of the row straddles a boundary.
+                let mut sub_rows: Vec<RowMaterials> = Vec::new();
                 for i in 0..nx {
                     let c0 = corner(i, j, k);
                     let centre = at_voxel(i as f64, j as f64, k as f64);
@@ -176,18 +177,34 @@ pub fn synthesize(
                     let clean = if pure {
                         signal_of(c0, shape.lesion_signal)
                     } else {
+                        if sub_rows.is_empty() {
+                            sub_rows = sub
+                                .iter()
+                                .flat_map(|&dk| sub.iter().map(move |&dj| (dj, dk)))
+                                .map(|(dj, dk)| {
+                                    let line = row_line(-0.5, nx, j as f64 + dj, k as f64 + dk);
+                                    let t_max = nx as f64;
+                                    RowMaterials::new(
+                                        shape,
+                                        &near,
+                                        (&line.0, &line.1),
+                                        t_max,
+                                        ROUNDING_MM,
+                                    )
+                                })
+                                .collect();
+                        }
                         let mut sum = 0.0f32;
+                        let mut rows = sub_rows.iter();
                         for &dk in &sub {
                             for &dj in &sub {
+                                let row = rows.next().expect("a row per (dj, dk)");
                                 for &di in &sub {
-                                    sum += signal_of(
-                                        material_at_voxel(
-                                            i as f64 + di,
-                                            j as f64 + dj,
-                                            k as f64 + dk,
-                                        ),
-                                        shape.lesion_signal,
-                                    );
+                                    let (i, j, k) = (i as f64, j as f64, k as f64);
+                                    let material = row.material_at(i + di + 0.5, || {
+                                        at_voxel(i + di, j + dj, k + dk)
+                                    });
+                                    sum += signal_of(material, shape.lesion_signal);
                                 }
                             }
                         }

@@ -355,7 +355,10 @@ fn render_with(
         // Quincunx: corner (cx, cy) lies at pixel coordinates (cx - 1/2,
         // cy - 1/2), sampled once for the texture pixels around it, near
         // the surface the first of them (in row order) was told of.
-        let corners: Vec<[f32; 3]> = if p.texture == TextureSamples::Quincunx {
+        // (None where no pixel is a texture pixel: a scene that tells no
+        // smooth surfaces apart, such as the calibration board's.)
+        let any_texture = samples.par_iter().any(|s| *s == PixelSamples::Texture);
+        let corners: Vec<[f32; 3]> = if p.texture == TextureSamples::Quincunx && any_texture {
             (0..(w + 1) * (h + 1))
                 .into_par_iter()
                 .map(|i| {

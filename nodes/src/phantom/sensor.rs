@@ -260,7 +260,17 @@ mod tests {
     #[test]
     fn the_small_floor_is_the_cast() {
         let mut rng = ChaCha8Rng::seed_from_u64(4);
-        let mut values = vec![0.0, -0.0, 0.5, 1.0, 1.5, 2.5, 254.5, 255.5, 0.49999999999999994];
+        let mut values = vec![
+            0.0,
+            -0.0,
+            0.5,
+            1.0,
+            1.5,
+            2.5,
+            254.5,
+            255.5,
+            0.49999999999999994,
+        ];
         values.extend((0..512).map(|k| k as f64 / 2.0));
         values.extend((0..512).map(|k| f64::from_bits((k as f64 / 2.0).to_bits() + 1)));
         values.extend((1..512).map(|k| f64::from_bits((k as f64 / 2.0).to_bits() - 1)));

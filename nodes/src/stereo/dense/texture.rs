@@ -48,17 +48,19 @@ pub fn noise_sigma(img: &GreyImage) -> f64 {
 /// spread over neighbouring pixels. `None` with under 1,000 matched pixels.
 pub fn pair_noise_dn(left: &GreyImage, right: &GreyImage, disparity: &[f32]) -> Option<f64> {
     let w = left.width;
+    // Row by row (a pixel's column from its index would be a division).
     let mut residuals: Vec<f32> = disparity
-        .iter()
+        .chunks(w)
         .enumerate()
-        .filter_map(|(i, &d)| {
-            let (x, y) = (i % w, i / w);
-            let xr = x as f32 - d;
-            (d.is_finite() && xr >= 0.0 && xr < (w - 1) as f32).then(|| {
-                let x0 = xr as usize;
-                let t = xr - x0 as f32;
-                let r = right.at(x0, y) as f32 * (1.0 - t) + right.at(x0 + 1, y) as f32 * t;
-                left.at(x, y) as f32 - r
+        .flat_map(|(y, row)| {
+            row.iter().enumerate().filter_map(move |(x, &d)| {
+                let xr = x as f32 - d;
+                (d.is_finite() && xr >= 0.0 && xr < (w - 1) as f32).then(|| {
+                    let x0 = xr as usize;
+                    let t = xr - x0 as f32;
+                    let r = right.at(x0, y) as f32 * (1.0 - t) + right.at(x0 + 1, y) as f32 * t;
+                    left.at(x, y) as f32 - r
+                })
             })
         })
         .collect();

@@ -149,6 +149,11 @@ pub fn synthesize(
     let corner = |i: usize, j: usize, k: usize| corners[i + cx * (j + cy * k)];
     let n = p.supersample.max(1);
     let sub: Vec<f64> = (0..n).map(|s| (s as f64 + 0.5) / n as f64 - 0.5).collect();
+    // The sub-samples' (dj, dk) offsets, in the order they are summed.
+    let sub_offsets: Vec<(f64, f64)> = sub
+        .iter()
+        .flat_map(|&dk| sub.iter().map(move |&dj| (dj, dk)))
+        .collect();
     // Every sample of a voxel lies within half its diagonal of its centre.
     let half_diagonal_mm = 0.5 * Vector3::from(grid.spacing_mm()).norm() + ROUNDING_MM;
     let bias = BiasField::new(shape, p.seed, p.bias_amplitude);
@@ -178,10 +183,9 @@ pub fn synthesize(
                         signal_of(c0, shape.lesion_signal)
                     } else {
                         if sub_rows.is_empty() {
-                            sub_rows = sub
+                            sub_rows = sub_offsets
                                 .iter()
-                                .flat_map(|&dk| sub.iter().map(move |&dj| (dj, dk)))
-                                .map(|(dj, dk)| {
+                                .map(|&(dj, dk)| {
                                     let line = row_line(-0.5, nx, j as f64 + dj, k as f64 + dk);
                                     let t_max = nx as f64;
                                     RowMaterials::new(
@@ -195,17 +199,12 @@ pub fn synthesize(
                                 .collect();
                         }
                         let mut sum = 0.0f32;
-                        let mut rows = sub_rows.iter();
-                        for &dk in &sub {
-                            for &dj in &sub {
-                                let row = rows.next().expect("a row per (dj, dk)");
-                                for &di in &sub {
-                                    let (i, j, k) = (i as f64, j as f64, k as f64);
-                                    let material = row.material_at(i + di + 0.5, || {
-                                        at_voxel(i + di, j + dj, k + dk)
-                                    });
-                                    sum += signal_of(material, shape.lesion_signal);
-                                }
+                        for (row, &(dj, dk)) in sub_rows.iter().zip(&sub_offsets) {
+                            for &di in &sub {
+                                let (i, j, k) = (i as f64, j as f64, k as f64);
+                                let material = row
+                                    .material_at(i + di + 0.5, || at_voxel(i + di, j + dj, k + dk));
+                                sum += signal_of(material, shape.lesion_signal);
                             }
                         }
                         sum / (n * n * n) as f32

@@ -33,9 +33,9 @@ pub struct RowMaterials<'s, 'n> {
 
 impl<'s, 'n> RowMaterials<'s, 'n> {
     /// The row `start + t step` (phantom frame, mm; `0 <= t <= span`) on
-    /// `shape`, with `near` the parts of the shape within at least
-    /// `slack_mm` of every point the row will be asked about, and those
-    /// points within `slack_mm` of the line.
+    /// `shape`. `near` must hold every marker and lesion that can hold a
+    /// point the row will be asked about, and those points must lie
+    /// within `slack_mm` of the line.
     pub fn new(
         shape: &PhantomShape,
         near: &'n ShapeNear<'s>,

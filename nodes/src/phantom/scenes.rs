@@ -14,8 +14,7 @@ use super::shape::{RaysFrom, Surface};
 use super::texture::{RecentCell, ValueNoise};
 use crate::numeric::floor_i64;
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
-use std::cell::Cell;
-use std::cell::RefCell;
+use std::cell::{Cell, RefCell};
 
 /// A chessboard of `cols x rows` inner corners (OpenCV's pattern size), squares
 /// `square_mm` across, white border `margin_mm` wide. Board frame: x along the

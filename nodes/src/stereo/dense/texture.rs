@@ -48,6 +48,9 @@ pub fn noise_sigma(img: &GreyImage) -> f64 {
 /// spread over neighbouring pixels. `None` with under 1,000 matched pixels.
 pub fn pair_noise_dn(left: &GreyImage, right: &GreyImage, disparity: &[f32]) -> Option<f64> {
     let w = left.width;
+    if w == 0 {
+        return None;
+    }
     // Row by row (a pixel's column from its index would be a division).
     let mut residuals: Vec<f32> = disparity
         .chunks(w)

@@ -40,6 +40,30 @@ pub fn round_to_u8(x: f64) -> u8 {
     t + u8::from(x - t as f64 >= 0.5)
 }
 
+/// |q| below this, [`floor_small`] is exact.
+pub const EXACT_FLOOR_LIMIT: f64 = 2_251_799_813_685_248.0; // 2^51
+
+/// The floor of `q` for |q| < 2^51 (exact, but for the sign of a zero:
+/// -0 gives +0; the caller checks the range), in arithmetic that
+/// vectorises: rounding by the magic number 1.5 * 2^52,
+/// less one where that rounded up.
+#[inline(always)]
+pub fn floor_small(q: f64) -> f64 {
+    const MAGIC: f64 = 6_755_399_441_055_744.0; // 1.5 * 2^52
+    let rounded = (q + MAGIC) - MAGIC;
+    if rounded > q { rounded - 1.0 } else { rounded }
+}
+
+/// `y as u64` (the floor) for `0 <= y < 2^51`, and 0 for NaN and below 0,
+/// in arithmetic that vectorises (the saturating cast is a branch per
+/// lane): the [`floor_small`] read from the low bits of itself plus 2^52.
+#[inline(always)]
+pub fn floor_small_u64(y: f64) -> u64 {
+    const TWO_POW_52: f64 = 4_503_599_627_370_496.0;
+    let y = if y >= 0.0 { y } else { 0.0 };
+    (floor_small(y) + TWO_POW_52).to_bits() - TWO_POW_52.to_bits()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -108,6 +132,35 @@ mod tests {
         values.extend((0..20_000).map(|_| rng.random_range(-2.0..258.0)));
         for x in values {
             assert_eq!(round_to_u8(x), x.round().clamp(0.0, 255.0) as u8, "{x}");
+        }
+    }
+
+    #[test]
+    fn the_small_floors_are_the_library_floor_and_the_cast() {
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let mut values = vec![
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.5,
+            -1.5,
+            2.5,
+            255.5,
+            0.49999999999999994,
+        ];
+        // Every half to +-256 and its neighbours on both sides.
+        let halves: Vec<f64> = (-512..512).map(|k| k as f64 / 2.0).collect();
+        values.extend(halves.iter().flat_map(|h| [h.next_down(), *h, h.next_up()]));
+        values.extend((0..20_000).map(|_| rng.random_range(-300.0..300.0)));
+        values.extend([EXACT_FLOOR_LIMIT - 0.5, -(EXACT_FLOOR_LIMIT - 0.5)]);
+        for q in values {
+            // Equal values (the sign of a zero floor may differ).
+            assert_eq!(floor_small(q), q.floor(), "{q}");
+            assert_eq!(floor_small_u64(q), q as u64, "{q}");
+        }
+        for y in [f64::NAN, -0.5, -1e-300, f64::NEG_INFINITY] {
+            assert_eq!(floor_small_u64(y), 0, "{y}");
         }
     }
 }

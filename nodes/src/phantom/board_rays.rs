@@ -6,6 +6,7 @@
 //! decide exactly (a NaN, or a coordinate too large for its floor) are
 //! left to the scalar path.
 
+use crate::numeric::{EXACT_FLOOR_LIMIT, floor_small};
 use crate::simd::{Isa, kernels};
 use nalgebra::{Matrix3, Vector3};
 
@@ -105,18 +106,6 @@ pub(crate) struct RowGeometry {
 const OFF_BOARD: u8 = 0;
 const ON_BOARD: u8 = 1;
 const UNDECIDED: u8 = 2;
-
-/// |q| below this, `(q + MAGIC) - MAGIC` is q rounded to an integer.
-const EXACT_FLOOR_LIMIT: f64 = 2_251_799_813_685_248.0; // 2^51
-const MAGIC: f64 = 6_755_399_441_055_744.0; // 1.5 * 2^52
-
-/// The floor of `q` for |q| < 2^51 (exact; the caller checks the range):
-/// rounding by the magic number, less one where that rounded up.
-#[inline(always)]
-fn floor_small(q: f64) -> f64 {
-    let rounded = (q + MAGIC) - MAGIC;
-    if rounded > q { rounded - 1.0 } else { rounded }
-}
 
 kernels! {
     /// For each ray (direction components `dirs[0..3][i]`, world frame):

@@ -43,10 +43,7 @@ impl<'s, 'n> RowMaterials<'s, 'n> {
         span: f64,
         slack_mm: f64,
     ) -> Self {
-        let axes = Vector3::from(shape.semi_axes_mm);
-        let to_unit = |v: Vector3<f64>| (shape.rotation().inverse() * v).component_div(&axes);
-        let u0 = to_unit(start - Point3::from(shape.ellipsoid_center_mm));
-        let du = to_unit(*step);
+        let (u0, du) = (shape.to_unit_sphere(start), shape.to_unit_frame(step));
         let q = [
             u0.norm_squared() - 1.0,
             2.0 * u0.dot(&du),
@@ -55,13 +52,12 @@ impl<'s, 'n> RowMaterials<'s, 'n> {
         // A point off the line by δ (|δ| <= slack) moves u by at most
         // |δ| / a_min, and q by 2 |u| |δ| / a_min + (|δ| / a_min)^2; |u| is
         // largest at the row's ends. Rounding in q itself is far below 1e-9.
-        let a_min = axes.min();
-        let reach = slack_mm / a_min;
-        let q_guard = move |u_max: f64| 2.0 * (2.0 * u_max * reach + reach * reach) + 1e-9;
+        let reach = slack_mm / Vector3::from(shape.semi_axes_mm).min();
+        let u_max = u0.norm().max((u0 + du * span).norm());
         RowMaterials {
             near,
             q,
-            q_guard: q_guard(u0.norm().max((u0 + du * span).norm())),
+            q_guard: 2.0 * (2.0 * u_max * reach + reach * reach) + 1e-9,
             z: [start.z, step.z],
             z_guard_mm: 2.0 * slack_mm + 1e-9,
             near_parts: near

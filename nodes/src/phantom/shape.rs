@@ -320,9 +320,16 @@ impl PhantomShape {
         })
     }
 
-    fn to_unit_sphere(&self, p: &Point3<f64>) -> Vector3<f64> {
-        let q = self.rotation().inverse() * (p - Point3::from(self.ellipsoid_center_mm));
-        q.component_div(&Vector3::from(self.semi_axes_mm))
+    /// `p` in the ellipsoid's unit-sphere frame (the dome's surface at
+    /// length 1).
+    pub(super) fn to_unit_sphere(&self, p: &Point3<f64>) -> Vector3<f64> {
+        self.to_unit_frame(&(p - Point3::from(self.ellipsoid_center_mm)))
+    }
+
+    /// A displacement `v` (phantom frame, mm) in the ellipsoid's
+    /// unit-sphere frame.
+    pub(super) fn to_unit_frame(&self, v: &Vector3<f64>) -> Vector3<f64> {
+        (self.rotation().inverse() * v).component_div(&Vector3::from(self.semi_axes_mm))
     }
 
     /// Whether `p` is inside the dome (tissue, before markers and lesions).

@@ -154,6 +154,7 @@ pub fn refine_disparity(
         .map(|(b, block)| {
             let mut refined = 0;
             let mut band: Option<ColumnSums> = None;
+            let mut flying = Vec::new();
             for (k, row) in block.chunks_mut(w).enumerate() {
                 let y = b * BLOCK_ROWS + k;
                 if y < r || y + r >= h {
@@ -172,7 +173,7 @@ pub fn refine_disparity(
                     row,
                     r..w - r,
                     y0,
-                    sums.windows(),
+                    &sums.windows(),
                     &li,
                     &g2,
                     w,
@@ -180,6 +181,7 @@ pub fn refine_disparity(
                     n,
                     isa,
                     params,
+                    &mut flying,
                 );
             }
             refined
@@ -190,7 +192,7 @@ pub fn refine_disparity(
 /// The window sums of one pixel at one integer start c of its right window
 /// (index 0 at c, 1 at c + 1), which every Gauss-Newton step with that c
 /// mixes by its own fraction.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, Default)]
 struct WindowSums {
     r: [f64; 2],
     g: [f64; 2],
@@ -202,14 +204,58 @@ struct WindowSums {
     g_l: [f64; 2],
 }
 
+/// A pixel of a row in flight through the Gauss-Newton steps.
+#[derive(Debug, Clone, Copy)]
+struct InFlight {
+    /// Its column, px.
+    x: usize,
+    /// The matcher's disparity, px.
+    d0: f32,
+    /// The disparity so far, px.
+    d: f64,
+    /// The left window's sum.
+    sl: f64,
+    /// Where it is.
+    state: State,
+    /// The integer start of the right window `sums` are of (`usize::MAX`:
+    /// none yet).
+    at: usize,
+    /// The window sums at `at`.
+    sums: WindowSums,
+    /// This step's fraction of a pixel past `at`, and one less it.
+    t: f64,
+    u: f64,
+    /// This step's shift, px, and the right gradient's variance it divided
+    /// by (four times it, as the sums are of twice the gradient).
+    delta: f64,
+    var_g: f64,
+}
+
+/// Where a pixel's Gauss-Newton steps have left it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum State {
+    /// Moved, and more steps may follow.
+    Moving,
+    /// Moved by under the step that ends the iterations: refined.
+    Converged,
+    /// Out of the image, without texture, or too far from the matcher's
+    /// value: it keeps that value.
+    Failed,
+}
+
 /// Refines the valid disparities in `columns` of one row (its windows' rows
 /// start at `y0`) with the band's window sums; returns how many it refined.
+/// The row's pixels take each step together, in three passes (`flying` is
+/// scratch): the window sums pixel by pixel, the step's arithmetic for
+/// all of them without a branch, then what the step means for each. Step
+/// by step, pixel after pixel waited on its division and on the branches
+/// that hang on it, which the data decide.
 #[allow(clippy::too_many_arguments)]
 fn refine_row(
     row: &mut [f32],
     columns: std::ops::Range<usize>,
     y0: usize,
-    sums: [BandSums; 8],
+    sums: &[BandSums; 8],
     lf: &[i16],
     gx: &[i16],
     w: usize,
@@ -217,6 +263,7 @@ fn refine_row(
     n: f64,
     isa: Isa,
     params: &RefineParams,
+    flying: &mut Vec<InFlight>,
 ) -> usize {
     let r = side / 2;
     let [
@@ -229,81 +276,94 @@ fn refine_row(
         sum_g_r1,
         sum_g1_r,
     ] = sums;
-    let mut refined = 0;
-    for (x, out) in row
-        .iter_mut()
-        .enumerate()
-        .take(columns.end)
-        .skip(columns.start)
-    {
-        let d0 = *out;
-        if d0.is_nan() {
-            continue;
-        }
-        let sl = sum_l.window(x - r, side);
-        // Divisions are slow and serial here: one per step, not three.
-        let inv_n = 1.0 / n;
-        let mut d = d0 as f64;
-        let mut ok = true;
-        let mut cached: Option<(usize, WindowSums)> = None;
-        for _ in 0..params.iterations {
+    // Divisions are slow: one per step, not three.
+    let inv_n = 1.0 / n;
+    flying.clear();
+    flying.extend(
+        row.iter()
+            .enumerate()
+            .take(columns.end)
+            .skip(columns.start)
+            .filter(|(_, d0)| !d0.is_nan())
+            .map(|(x, &d0)| InFlight {
+                x,
+                d0,
+                d: d0 as f64,
+                sl: sum_l.window(x - r, side),
+                state: State::Moving,
+                at: usize::MAX,
+                sums: WindowSums::default(),
+                t: 0.0,
+                u: 0.0,
+                delta: 0.0,
+                var_g: 0.0,
+            }),
+    );
+    for _ in 0..params.iterations {
+        let mut moving = 0;
+        for p in flying.iter_mut().filter(|p| p.state == State::Moving) {
             // The window's right samples start at c + t (c integer).
-            let xs = x as f64 - d - r as f64;
+            let xs = p.x as f64 - p.d - r as f64;
             // xs >= 0 here, so truncation is the floor (and needs no libm call).
             if xs < 0.0 || xs as usize + side + 1 >= w {
-                ok = false;
-                break;
+                p.state = State::Failed;
+                continue;
             }
+            moving += 1;
             let c = xs as usize;
-            let t = xs - c as f64;
-            let u = 1.0 - t;
+            p.t = xs - c as f64;
+            p.u = 1.0 - p.t;
             // The sums at c (the same c as the last step needs no new sums).
-            let k = match cached {
-                Some((at, k)) if at == c => k,
-                _ => {
-                    let (dot0, dot1) = isa.window_dots(lf, gx, w, x - r, c, y0, side);
-                    let at = |b: &BandSums| [b.window(c, side), b.window(c + 1, side)];
-                    let k = WindowSums {
-                        r: at(&sum_r),
-                        g: at(&sum_g),
-                        gg: at(&sum_gg),
-                        g_g1: sum_g_g1.window(c, side),
-                        g_r: at(&sum_g_r),
-                        g_r1: sum_g_r1.window(c, side),
-                        g1_r: sum_g1_r.window(c, side),
-                        g_l: [dot0 as f64, dot1 as f64],
-                    };
-                    cached = Some((c, k));
-                    k
-                }
-            };
-            let s_r = sl - u * k.r[0] - t * k.r[1];
+            if p.at != c {
+                let (dot0, dot1) = isa.window_dots(lf, gx, w, p.x - r, c, y0, side);
+                let at = |b: &BandSums| [b.window(c, side), b.window(c + 1, side)];
+                p.sums = WindowSums {
+                    r: at(sum_r),
+                    g: at(sum_g),
+                    gg: at(sum_gg),
+                    g_g1: sum_g_g1.window(c, side),
+                    g_r: at(sum_g_r),
+                    g_r1: sum_g_r1.window(c, side),
+                    g1_r: sum_g1_r.window(c, side),
+                    g_l: [dot0 as f64, dot1 as f64],
+                };
+                p.at = c;
+            }
+        }
+        if moving == 0 {
+            break;
+        }
+        // Every pixel's step (those no longer moving are not read).
+        for p in flying.iter_mut() {
+            let (k, t, u) = (&p.sums, p.t, p.u);
+            let s_r = p.sl - u * k.r[0] - t * k.r[1];
             let s_g = u * k.g[0] + t * k.g[1];
             let s_gg = u * u * k.gg[0] + 2.0 * t * u * k.g_g1 + t * t * k.gg[1];
             let s_gr = u * k.g_l[0] + t * k.g_l[1]
                 - (u * u * k.g_r[0] + t * u * (k.g_r1 + k.g1_r) + t * t * k.g_r[1]);
-            // The sums with g are of twice the gradient: var_g is four times
-            // the gradient's variance, s_gr and s_g twice theirs.
-            let var_g = s_gg - s_g * s_g * inv_n;
-            if var_g < 4e-3 * n {
-                ok = false; // no horizontal texture to align
-                break;
-            }
+            // The sums with g are of twice the gradient: var_g is four
+            // times the gradient's variance, s_gr and s_g twice theirs.
+            p.var_g = s_gg - s_g * s_g * inv_n;
             // res(d + delta) ~ res + g delta (I_R is sampled at x - d - delta).
-            let delta = -2.0 * (s_gr - s_g * s_r * inv_n) / var_g;
-            d += delta;
-            if (d - d0 as f64).abs() > params.max_change_px as f64 {
-                ok = false;
-                break;
+            p.delta = -2.0 * (s_gr - s_g * s_r * inv_n) / p.var_g;
+        }
+        for p in flying.iter_mut().filter(|p| p.state == State::Moving) {
+            if p.var_g < 4e-3 * n {
+                p.state = State::Failed; // no horizontal texture to align
+                continue;
             }
-            if delta.abs() < 0.005 {
-                break;
+            p.d += p.delta;
+            if (p.d - p.d0 as f64).abs() > params.max_change_px as f64 {
+                p.state = State::Failed;
+            } else if p.delta.abs() < 0.005 {
+                p.state = State::Converged;
             }
         }
-        if ok {
-            *out = d as f32;
-            refined += 1;
-        }
+    }
+    let mut refined = 0;
+    for p in flying.iter().filter(|p| p.state != State::Failed) {
+        row[p.x] = p.d as f32;
+        refined += 1;
     }
     refined
 }

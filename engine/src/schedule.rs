@@ -220,7 +220,7 @@ impl<'a> Executor<'a> {
                 self.entry(i).take();
             }
             if ms >= crate::memory::TRIM_AFTER_MS {
-                crate::memory::return_free_memory();
+                crate::memory::return_free_memory_if_large();
             }
         }
         self.progress.inc(1);

@@ -64,6 +64,68 @@ pub fn floor_small_u64(y: f64) -> u64 {
     (floor_small(y) + TWO_POW_52).to_bits() - TWO_POW_52.to_bits()
 }
 
+/// Below this many values, [`kth_smallest_f32`] selects among them all
+/// (its histogram would cost more than it saves).
+const RADIX_SELECT_MIN: usize = 4096;
+
+/// `v`'s place in `f32::total_cmp`'s order as an unsigned integer: negative
+/// values' bits flipped (larger magnitude, smaller key), others with the sign
+/// bit set (above every negative).
+#[inline(always)]
+fn order_key(v: f32) -> u32 {
+    let bits = v.to_bits();
+    if bits >> 31 == 1 {
+        !bits
+    } else {
+        bits | 0x8000_0000
+    }
+}
+
+/// The value whose [`order_key`] is `key`.
+fn from_order_key(key: u32) -> f32 {
+    f32::from_bits(if key >> 31 == 1 {
+        key & 0x7fff_ffff
+    } else {
+        !key
+    })
+}
+
+/// The `k`-th smallest of `values` (0 the smallest) in `f32::total_cmp`'s
+/// order: the value `select_nth_unstable_by(k, f32::total_cmp)` puts at
+/// `k`, without reordering `values`; `None` where `k` is out of range. A
+/// radix select: a histogram of the top 16 bits of each value's order key
+/// finds the bucket that holds rank k, and only that bucket's values (a
+/// few hundredths of a pixel's residuals, say) are selected among. Two
+/// passes, where quickselect partitions several times with a branch per
+/// value that the data decide.
+pub fn kth_smallest_f32(values: &[f32], k: usize) -> Option<f32> {
+    if k >= values.len() {
+        return None;
+    }
+    if values.len() < RADIX_SELECT_MIN || u32::try_from(values.len()).is_err() {
+        let mut all = values.to_vec();
+        return Some(*all.select_nth_unstable_by(k, f32::total_cmp).1);
+    }
+    let mut counts = vec![0u32; 1 << 16];
+    for &v in values {
+        counts[(order_key(v) >> 16) as usize] += 1;
+    }
+    let mut below = 0usize;
+    let bucket = counts.iter().position(|&c| {
+        let inside = below + c as usize > k;
+        if !inside {
+            below += c as usize;
+        }
+        inside
+    })? as u32;
+    let mut inside: Vec<u32> = values
+        .iter()
+        .map(|&v| order_key(v))
+        .filter(|key| key >> 16 == bucket)
+        .collect();
+    Some(from_order_key(*inside.select_nth_unstable(k - below).1))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -162,5 +224,43 @@ mod tests {
         for y in [f64::NAN, -0.5, -1e-300, f64::NEG_INFINITY] {
             assert_eq!(floor_small_u64(y), 0, "{y}");
         }
+    }
+
+    #[test]
+    fn the_kth_smallest_is_what_selection_by_total_order_gives() {
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let special = [
+            0.0,
+            -0.0,
+            f32::NAN,
+            -f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::MIN_POSITIVE,
+            -f32::MIN_POSITIVE,
+            1e-45,
+            -1e-45,
+        ];
+        for n in [1, 7, 100, 4095, 4096, 5000, 60_000] {
+            // Residual-like values (many near zero, repeats) and the
+            // special ones mixed in.
+            let values: Vec<f32> = (0..n)
+                .map(|i| match i % 13 {
+                    0 => special[rng.random_range(0..special.len())],
+                    1 => rng.random_range(-3i32..=3) as f32,
+                    _ => rng.random_range(-20.0f32..20.0) * rng.random_range(0.0f32..1.0).powi(3),
+                })
+                .collect();
+            let mut ks = vec![0, n / 2, n - 1];
+            ks.extend((0..20).map(|_| rng.random_range(0..n)));
+            for k in ks {
+                let mut sorted = values.clone();
+                let expected = *sorted.select_nth_unstable_by(k, f32::total_cmp).1;
+                let got = kth_smallest_f32(&values, k).unwrap();
+                assert_eq!(got.to_bits(), expected.to_bits(), "n {n}, k {k}");
+            }
+            assert_eq!(kth_smallest_f32(&values, n), None);
+        }
+        assert_eq!(kth_smallest_f32(&[], 0), None);
     }
 }

@@ -9,6 +9,7 @@
 //! cost's smoothing of noisy pairs.
 
 use super::pair::GreyImage;
+use crate::numeric::kth_smallest_f32;
 use rayon::prelude::*;
 
 /// The standard deviation of the image noise, grey levels (Immerkaer: the
@@ -52,31 +53,30 @@ pub fn pair_noise_dn(left: &GreyImage, right: &GreyImage, disparity: &[f32]) -> 
         return None;
     }
     // Row by row (a pixel's column from its index would be a division).
-    let mut residuals: Vec<f32> = disparity
-        .chunks(w)
-        .enumerate()
-        .flat_map(|(y, row)| {
-            row.iter().enumerate().filter_map(move |(x, &d)| {
-                let xr = x as f32 - d;
-                (d.is_finite() && xr >= 0.0 && xr < (w - 1) as f32).then(|| {
-                    let x0 = xr as usize;
-                    let t = xr - x0 as f32;
-                    let r = right.at(x0, y) as f32 * (1.0 - t) + right.at(x0 + 1, y) as f32 * t;
-                    left.at(x, y) as f32 - r
-                })
-            })
-        })
-        .collect();
+    let mut residuals: Vec<f32> = Vec::with_capacity(disparity.len());
+    for (y, row) in disparity.chunks(w).enumerate() {
+        let (left_row, right_row) = (left.row(y), right.row(y));
+        for (x, &d) in row.iter().enumerate() {
+            let xr = x as f32 - d;
+            if d.is_finite() && xr >= 0.0 && xr < (w - 1) as f32 {
+                let x0 = xr as usize;
+                let t = xr - x0 as f32;
+                let r = right_row[x0] as f32 * (1.0 - t) + right_row[x0 + 1] as f32 * t;
+                residuals.push(left_row[x] as f32 - r);
+            }
+        }
+    }
     if residuals.len() < 1000 {
         return None;
     }
-    let median = |v: &mut Vec<f32>| {
-        let mid = v.len() / 2;
-        *v.select_nth_unstable_by(mid, f32::total_cmp).1
-    };
-    let centre = median(&mut residuals);
-    let mut deviations: Vec<f32> = residuals.iter().map(|r| (r - centre).abs()).collect();
-    Some(1.4826 * median(&mut deviations) as f64 / std::f64::consts::SQRT_2)
+    let mid = residuals.len() / 2;
+    let centre = kth_smallest_f32(&residuals, mid)?;
+    // The residuals' deviations from their median, in their place.
+    for r in residuals.iter_mut() {
+        *r = (*r - centre).abs();
+    }
+    let deviation = kth_smallest_f32(&residuals, mid)?;
+    Some(1.4826 * deviation as f64 / std::f64::consts::SQRT_2)
 }
 
 /// The Gaussian smoothing (sigma, px) a census cost needs on a pair whose

@@ -70,14 +70,99 @@ macro_rules! kernels {
 }
 pub(crate) use kernels;
 
+/// Outputs a weighted sum keeps in registers across its taps.
+const SUM_BLOCK: usize = 32;
+
+/// `out[i] = sum over t of weights[t] * tap(t)[i]`, each output summed from
+/// 0 in tap order (the bits of adding the taps' products one tap at a time);
+/// every tap is at least `out.len()` long. A block of outputs stays in
+/// registers while every tap is added, where a tap at a time over the whole
+/// run loaded and stored each output once a tap.
+#[inline(always)]
+fn weighted_sum_by<'a>(out: &mut [f32], weights: &[f32], tap: impl Fn(usize) -> &'a [f32]) {
+    let n = out.len();
+    let full = n - n % SUM_BLOCK;
+    for start in (0..full).step_by(SUM_BLOCK) {
+        let mut acc = [0.0f32; SUM_BLOCK];
+        for (t, &w) in weights.iter().enumerate() {
+            let src: &[f32; SUM_BLOCK] = tap(t)[start..start + SUM_BLOCK]
+                .try_into()
+                .expect("a block's run is a block long");
+            for (a, &s) in acc.iter_mut().zip(src) {
+                *a += w * s;
+            }
+        }
+        out[start..start + SUM_BLOCK].copy_from_slice(&acc);
+    }
+    let tail = &mut out[full..];
+    tail.fill(0.0);
+    for (t, &w) in weights.iter().enumerate() {
+        for (o, &s) in tail.iter_mut().zip(&tap(t)[full..n]) {
+            *o += w * s;
+        }
+    }
+}
+
 kernels! {
-    /// out += w v, element by element (the convolutions' inner loop, in the
-    /// MRI filters and the phantom's blur: AVX2 works eight lanes at a time
-    /// where SSE2 works four, with the same bits, as no multiply and add
-    /// are fused).
-    fn add_scaled(out: &mut [f32], w: f32, v: &[f32]) {
-        for (o, v) in out.iter_mut().zip(v) {
-            *o += w * v;
+    /// A correlation along a run: `out[i] = sum over t of weights[t] *
+    /// src[i + t * step]`, summed from 0 in tap order (the convolutions'
+    /// inner loop, in the MRI filters and the phantom's blur). `src` must
+    /// reach `out.len() + (weights.len() - 1) * step`.
+    fn correlate(out: &mut [f32], src: &[f32], weights: &[f32], step: usize) {
+        weighted_sum_by(out, weights, |t| &src[t * step..])
+    }
+
+    /// `out[i] = sum over t of weights[t] * rows[t][i]`, summed from 0 in
+    /// tap order (a convolution across rows); every row is at least
+    /// `out.len()` long.
+    fn weighted_rows(out: &mut [f32], rows: &[&[f32]], weights: &[f32]) {
+        weighted_sum_by(out, weights, |t| rows[t])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    /// The weighted sums as the convolutions first took them: the outputs
+    /// zeroed, then each tap's products added over the whole run.
+    fn tap_by_tap(n: usize, weights: &[f32], tap: impl Fn(usize) -> Vec<f32>) -> Vec<f32> {
+        let mut out = vec![0.0f32; n];
+        for (t, &w) in weights.iter().enumerate() {
+            for (o, s) in out.iter_mut().zip(tap(t)) {
+                *o += w * s;
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn weighted_sums_have_the_tap_by_tap_bits_on_every_instruction_set() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(21);
+        for n in [0, 1, 7, 31, 32, 33, 64, 95, 200] {
+            for taps in [1, 3, 13, 41] {
+                let weights: Vec<f32> = (0..taps).map(|_| rng.random_range(-0.2..0.6)).collect();
+                let step = rng.random_range(1..5);
+                let src: Vec<f32> = (0..n + (taps - 1) * step + 3)
+                    .map(|_| rng.random_range(-1e3..1e3))
+                    .collect();
+                let rows: Vec<Vec<f32>> = (0..taps)
+                    .map(|_| (0..n + 2).map(|_| rng.random_range(-1e3..1e3)).collect())
+                    .collect();
+                let row_refs: Vec<&[f32]> = rows.iter().map(|r| &r[..]).collect();
+                let along = tap_by_tap(n, &weights, |t| src[t * step..t * step + n].to_vec());
+                let across = tap_by_tap(n, &weights, |t| rows[t][..n].to_vec());
+                for isa in [Isa::Scalar, Isa::detect()] {
+                    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    let mut out = vec![f32::NAN; n];
+                    isa.correlate(&mut out, &src, &weights, step);
+                    assert_eq!(bits(&out), bits(&along), "{isa:?}: n {n}, {taps} taps");
+                    let mut out = vec![f32::NAN; n];
+                    isa.weighted_rows(&mut out, &row_refs, &weights);
+                    assert_eq!(bits(&out), bits(&across), "{isa:?}: n {n}, {taps} taps");
+                }
+            }
         }
     }
 }

@@ -57,7 +57,8 @@ fn gaussian_kernel(sigma: f64) -> Vec<f32> {
 /// borders clamped: each line of the axis is copied out and its outputs
 /// written back (along i a row, along j a slice, along k the rows of one j
 /// in every slice). Along j and k whole rows are weighted and summed
-/// (contiguous, so they vectorise, with AVX2 where the CPU has it). Each
+/// (contiguous, so they vectorise, with AVX2 where the CPU has it), a block
+/// of outputs held in registers across the taps ([`Isa::correlate`]). Each
 /// output is summed in kernel order, as [`convolve_axis_into`] sums it (the
 /// same bits).
 fn convolve_axis_in_place(data: &mut [f32], dims: [usize; 3], axis: usize, kernel: &[f32]) {
@@ -70,11 +71,18 @@ fn convolve_axis_in_place(data: &mut [f32], dims: [usize; 3], axis: usize, kerne
         rows.iter().for_each(|r| copy.extend_from_slice(r));
         let n = rows.len();
         for (own, row_out) in rows.iter_mut().enumerate() {
-            row_out.iter_mut().for_each(|o| *o = 0.0);
-            for (t, &w) in kernel.iter().enumerate() {
-                let at =
-                    (own as isize + t as isize - radius as isize).clamp(0, n as isize - 1) as usize;
-                isa.add_scaled(row_out, w, &copy[nx * at..nx * (at + 1)]);
+            if own >= radius && own + radius < n {
+                // Every tap's row inside: rows own - radius, ... one row apart.
+                isa.correlate(row_out, &copy[nx * (own - radius)..], kernel, nx);
+            } else {
+                let taps: Vec<&[f32]> = (0..kernel.len())
+                    .map(|t| {
+                        let at = (own as isize + t as isize - radius as isize)
+                            .clamp(0, n as isize - 1) as usize;
+                        &copy[nx * at..nx * (at + 1)]
+                    })
+                    .collect();
+                isa.weighted_rows(row_out, &taps, kernel);
             }
         }
     };
@@ -98,12 +106,7 @@ fn convolve_axis_in_place(data: &mut [f32], dims: [usize; 3], axis: usize, kerne
                     // Inside, no clamping: tap by tap over the whole inside
                     // of the row (which vectorises), each output still
                     // summed in kernel order.
-                    let inside = nx - 2 * radius;
-                    let inner = &mut row[radius..nx - radius];
-                    inner.iter_mut().for_each(|o| *o = 0.0);
-                    for (t, &w) in kernel.iter().enumerate() {
-                        isa.add_scaled(inner, w, &copy[t..t + inside]);
-                    }
+                    isa.correlate(&mut row[radius..nx - radius], copy, kernel, 1);
                     for i in (0..radius).chain(nx - radius..nx) {
                         row[i] = clamped(i);
                     }

@@ -72,11 +72,20 @@ pub fn gaussian_blur(image: &[[f32; 3]], w: usize, h: usize, sigma: f64) -> Vec<
     // order instead of one row apart per tap.
     let down_columns = |src: &[[f32; 3]]| -> Vec<[f32; 3]> {
         let mut dst = vec![[0.0f32; 3]; w * h];
+        let r = radius as usize;
         dst.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-            for (k, &kw) in kernel.iter().enumerate() {
-                let sy = (y as isize + k as isize - radius).clamp(0, h as isize - 1) as usize;
-                let src_row = src[sy * w..(sy + 1) * w].as_flattened();
-                isa.add_scaled(row.as_flattened_mut(), kw, src_row);
+            let out = row.as_flattened_mut();
+            if y >= r && y + r < h {
+                // Every tap's row inside: rows y - r, ... one row apart.
+                isa.correlate(out, src[(y - r) * w..].as_flattened(), &kernel, 3 * w);
+            } else {
+                let taps: Vec<&[f32]> = (0..kernel.len())
+                    .map(|k| {
+                        let sy = (y as isize + k as isize - radius).clamp(0, h as isize - 1);
+                        src[sy as usize * w..(sy as usize + 1) * w].as_flattened()
+                    })
+                    .collect();
+                isa.weighted_rows(out, &taps, &kernel);
             }
         });
         dst
@@ -107,12 +116,9 @@ fn blur_row(isa: Isa, row: &mut [[f32; 3]], src: &[[f32; 3]], kernel: &[f32]) {
     }
     let inside = r..w - r;
     {
+        // Output x reads src[x - r + k]: the run from 3 k floats in.
         let out = row[inside.clone()].as_flattened_mut();
-        let src = src.as_flattened();
-        for (k, &kw) in kernel.iter().enumerate() {
-            // Output x reads src[x - r + k]: the run from 3 k floats in.
-            isa.add_scaled(out, kw, &src[3 * k..3 * k + out.len()]);
-        }
+        isa.correlate(out, src.as_flattened(), kernel, 3);
     }
     for x in (0..r).chain(w - r..w) {
         row[x] = clamped(x);

@@ -20,6 +20,7 @@
 //! what the noise hides.
 
 use super::pair::GreyImage;
+use crate::simd::{Isa, kernels};
 use rayon::prelude::*;
 
 /// How [`fill_disparity`] filters.
@@ -139,25 +140,93 @@ fn exp_weights(distance: &[f32], log_a: f32, out: &mut [f32]) {
         });
 }
 
+/// Rows the passes along rows take at once, one a vector lane.
+const ROWS_TOGETHER: usize = 8;
+
 /// One pass of the recursive filter along every row of `a` and `b`
 /// (`width` wide), both directions: J[x] += w[x] (J[x-1] - J[x]), then the
-/// same from the right. Rows run in parallel.
+/// same from the right. A row's recursion is a chain of dependent steps, so
+/// [`ROWS_TOGETHER`] rows are taken at once, transposed so that each is a
+/// lane of one vector (each lane's arithmetic is its row's, so the same
+/// bits); blocks of rows run in parallel.
 fn along_rows(a: &mut [f32], b: &mut [f32], weights: &[f32], width: usize) {
-    a.par_chunks_mut(width)
-        .zip(b.par_chunks_mut(width))
-        .zip(weights.par_chunks(width))
-        .for_each(|((ra, rb), rw)| {
-            for x in 1..width {
-                let k = rw[x];
-                ra[x] += k * (ra[x - 1] - ra[x]);
-                rb[x] += k * (rb[x - 1] - rb[x]);
+    let block = width * ROWS_TOGETHER;
+    let isa = Isa::detect();
+    a.par_chunks_mut(block)
+        .zip(b.par_chunks_mut(block))
+        .zip(weights.par_chunks(block))
+        .for_each_init(
+            || [(); 3].map(|_| vec![[0.0f32; ROWS_TOGETHER]; width]),
+            |[ta, tb, tw], ((ba, bb), bw)| {
+                if ba.len() < block {
+                    for ((ra, rb), rw) in ba
+                        .chunks_mut(width)
+                        .zip(bb.chunks_mut(width))
+                        .zip(bw.chunks(width))
+                    {
+                        recurse_along_row(ra, rb, rw);
+                    }
+                    return;
+                }
+                for (rows, lanes) in [(&*ba, &mut *ta), (&*bb, &mut *tb), (bw, &mut *tw)] {
+                    for (r, row) in rows.chunks(width).enumerate() {
+                        for (lane, &v) in lanes.iter_mut().zip(row) {
+                            lane[r] = v;
+                        }
+                    }
+                }
+                isa.recurse_along_lanes(ta, tb, tw);
+                for (rows, lanes) in [(ba, &*ta), (bb, &*tb)] {
+                    for (r, row) in rows.chunks_mut(width).enumerate() {
+                        for (v, lane) in row.iter_mut().zip(lanes) {
+                            *v = lane[r];
+                        }
+                    }
+                }
+            },
+        );
+}
+
+/// The recursion along one row of `a` and `b` with its weights.
+fn recurse_along_row(ra: &mut [f32], rb: &mut [f32], rw: &[f32]) {
+    let width = ra.len();
+    for x in 1..width {
+        let k = rw[x];
+        ra[x] += k * (ra[x - 1] - ra[x]);
+        rb[x] += k * (rb[x - 1] - rb[x]);
+    }
+    for x in (0..width.saturating_sub(1)).rev() {
+        let k = rw[x + 1];
+        ra[x] += k * (ra[x + 1] - ra[x]);
+        rb[x] += k * (rb[x + 1] - rb[x]);
+    }
+}
+
+kernels! {
+    /// [`recurse_along_row`] on [`ROWS_TOGETHER`] rows at once, transposed:
+    /// `a[x][r]` is row r's value at x.
+    fn recurse_along_lanes(
+        a: &mut [[f32; ROWS_TOGETHER]],
+        b: &mut [[f32; ROWS_TOGETHER]],
+        w: &[[f32; ROWS_TOGETHER]],
+    ) {
+        let width = a.len().min(b.len()).min(w.len());
+        let step = |to: &mut [f32; ROWS_TOGETHER], from: &[f32; ROWS_TOGETHER], k: &[f32; ROWS_TOGETHER]| {
+            for r in 0..ROWS_TOGETHER {
+                to[r] += k[r] * (from[r] - to[r]);
             }
-            for x in (0..width.saturating_sub(1)).rev() {
-                let k = rw[x + 1];
-                ra[x] += k * (ra[x + 1] - ra[x]);
-                rb[x] += k * (rb[x + 1] - rb[x]);
-            }
-        });
+        };
+        for x in 1..width {
+            let (from_a, from_b) = (a[x - 1], b[x - 1]);
+            step(&mut a[x], &from_a, &w[x]);
+            step(&mut b[x], &from_b, &w[x]);
+        }
+        for x in (0..width.saturating_sub(1)).rev() {
+            let (from_a, from_b) = (a[x + 1], b[x + 1]);
+            step(&mut a[x], &from_a, &w[x + 1]);
+            step(&mut b[x], &from_b, &w[x + 1]);
+        }
+    }
 }
 
 /// The same down and up every column, a whole row at a time (the inner
@@ -190,6 +259,58 @@ fn along_columns(a: &mut [f32], b: &mut [f32], weights: &[f32], width: usize) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The passes along rows, blocks of rows taken at once on either
+    /// instruction set, give each row's own recursion's bits (a tail of
+    /// rows under a block included).
+    #[test]
+    fn rows_taken_together_keep_each_rows_bits() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(6);
+        let width = 37;
+        for rows in [1, ROWS_TOGETHER, 2 * ROWS_TOGETHER + 3] {
+            let mut random = |lo: f32, hi: f32| -> Vec<f32> {
+                (0..width * rows)
+                    .map(|_| rng.random_range(lo..hi))
+                    .collect()
+            };
+            let (a, b, w) = (random(-50.0, 50.0), random(0.0, 1.0), random(0.0, 1.0));
+            let (mut want_a, mut want_b) = (a.clone(), b.clone());
+            for ((ra, rb), rw) in want_a
+                .chunks_mut(width)
+                .zip(want_b.chunks_mut(width))
+                .zip(w.chunks(width))
+            {
+                recurse_along_row(ra, rb, rw);
+            }
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            let (mut got_a, mut got_b) = (a.clone(), b.clone());
+            along_rows(&mut got_a, &mut got_b, &w, width);
+            assert_eq!(bits(&got_a), bits(&want_a), "{rows} rows");
+            assert_eq!(bits(&got_b), bits(&want_b), "{rows} rows");
+            if rows >= ROWS_TOGETHER {
+                let lanes = |v: &[f32]| -> Vec<[f32; ROWS_TOGETHER]> {
+                    (0..width)
+                        .map(|x| std::array::from_fn(|r| v[r * width + x]))
+                        .collect()
+                };
+                for isa in [Isa::Scalar, Isa::detect()] {
+                    let (mut la, mut lb) = (lanes(&a), lanes(&b));
+                    isa.recurse_along_lanes(&mut la, &mut lb, &lanes(&w));
+                    assert_eq!(
+                        bits(la.as_flattened()),
+                        bits(lanes(&want_a).as_flattened()),
+                        "{isa:?}"
+                    );
+                    assert_eq!(
+                        bits(lb.as_flattened()),
+                        bits(lanes(&want_b).as_flattened()),
+                        "{isa:?}"
+                    );
+                }
+            }
+        }
+    }
 
     fn params() -> FillParams {
         FillParams {

@@ -103,8 +103,8 @@ fn convolve_axis_in_place(data: &mut [f32], dims: [usize; 3], axis: usize, kerne
                     s
                 };
                 if nx > 2 * radius {
-                    // Inside, no clamping: tap by tap over the whole inside
-                    // of the row (which vectorises), each output still
+                    // Inside, no clamping: a correlation along the row
+                    // (vectorised across outputs), each output still
                     // summed in kernel order.
                     isa.correlate(&mut row[radius..nx - radius], copy, kernel, 1);
                     for i in (0..radius).chain(nx - radius..nx) {

@@ -94,10 +94,10 @@ pub fn gaussian_blur(image: &[[f32; 3]], w: usize, h: usize, sigma: f64) -> Vec<
 }
 
 /// One row of `src` blurred along itself by `kernel` (odd length, centred)
-/// into `row` (zeros on entry), edges clamped: each output sums its taps in
-/// kernel order. The inside runs tap by tap over the whole run of outputs,
-/// RGB flattened, so the loop vectorises (one tap per output at a time,
-/// still in kernel order: the bits of a tap loop per output).
+/// into `row`, edges clamped: each output sums its taps in kernel order.
+/// The inside is a correlation along the row, RGB flattened (a step of 3
+/// floats a tap), vectorised across outputs with the bits of a tap loop per
+/// output.
 fn blur_row(isa: Isa, row: &mut [[f32; 3]], src: &[[f32; 3]], kernel: &[f32]) {
     let (w, r) = (row.len(), kernel.len() / 2);
     let clamped = |x: usize| {

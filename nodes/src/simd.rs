@@ -120,6 +120,38 @@ kernels! {
     }
 }
 
+impl Isa {
+    /// Row `y` of `rows` (row-major, each `row_len` floats) convolved across
+    /// the rows with `kernel` (odd length, centred), rows past either end
+    /// clamped to the nearest, into `out` (`row_len` long): each output
+    /// summed from 0 in kernel order. Inside, the taps' rows lie one row
+    /// apart ([`Isa::correlate`]); at the ends they are gathered.
+    pub(crate) fn convolve_across_rows(
+        self,
+        out: &mut [f32],
+        rows: &[f32],
+        row_len: usize,
+        y: usize,
+        kernel: &[f32],
+    ) {
+        if row_len == 0 {
+            return;
+        }
+        let (n, r) = (rows.len() / row_len, kernel.len() / 2);
+        if y >= r && y + r < n {
+            self.correlate(out, &rows[row_len * (y - r)..], kernel, row_len);
+        } else {
+            let taps: Vec<&[f32]> = (0..kernel.len())
+                .map(|t| {
+                    let at = (y + t).saturating_sub(r).min(n - 1);
+                    &rows[row_len * at..row_len * (at + 1)]
+                })
+                .collect();
+            self.weighted_rows(out, &taps, kernel);
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -162,6 +194,28 @@ mod tests {
                     isa.weighted_rows(&mut out, &row_refs, &weights);
                     assert_eq!(bits(&out), bits(&across), "{isa:?}: n {n}, {taps} taps");
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn rows_convolved_across_clamp_at_both_ends() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(22);
+        let (row_len, n) = (45, 9);
+        let rows: Vec<f32> = (0..row_len * n)
+            .map(|_| rng.random_range(0.0..255.0))
+            .collect();
+        let kernel: Vec<f32> = (0..7).map(|_| rng.random_range(0.0..0.3)).collect();
+        for y in 0..n {
+            let want = tap_by_tap(row_len, &kernel, |t| {
+                let at = (y as isize + t as isize - 3).clamp(0, n as isize - 1) as usize;
+                rows[row_len * at..row_len * (at + 1)].to_vec()
+            });
+            for isa in [Isa::Scalar, Isa::detect()] {
+                let mut out = vec![f32::NAN; row_len];
+                isa.convolve_across_rows(&mut out, &rows, row_len, y, &kernel);
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&out), bits(&want), "{isa:?}, row {y}");
             }
         }
     }

@@ -69,21 +69,8 @@ fn convolve_axis_in_place(data: &mut [f32], dims: [usize; 3], axis: usize, kerne
     let smooth_rows = |rows: &mut [&mut [f32]], copy: &mut Vec<f32>| {
         copy.clear();
         rows.iter().for_each(|r| copy.extend_from_slice(r));
-        let n = rows.len();
         for (own, row_out) in rows.iter_mut().enumerate() {
-            if own >= radius && own + radius < n {
-                // Every tap's row inside: rows own - radius, ... one row apart.
-                isa.correlate(row_out, &copy[nx * (own - radius)..], kernel, nx);
-            } else {
-                let taps: Vec<&[f32]> = (0..kernel.len())
-                    .map(|t| {
-                        let at = (own as isize + t as isize - radius as isize)
-                            .clamp(0, n as isize - 1) as usize;
-                        &copy[nx * at..nx * (at + 1)]
-                    })
-                    .collect();
-                isa.weighted_rows(row_out, &taps, kernel);
-            }
+            isa.convolve_across_rows(row_out, copy, nx, own, kernel);
         }
     };
     match axis {

@@ -72,21 +72,14 @@ pub fn gaussian_blur(image: &[[f32; 3]], w: usize, h: usize, sigma: f64) -> Vec<
     // order instead of one row apart per tap.
     let down_columns = |src: &[[f32; 3]]| -> Vec<[f32; 3]> {
         let mut dst = vec![[0.0f32; 3]; w * h];
-        let r = radius as usize;
         dst.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-            let out = row.as_flattened_mut();
-            if y >= r && y + r < h {
-                // Every tap's row inside: rows y - r, ... one row apart.
-                isa.correlate(out, src[(y - r) * w..].as_flattened(), &kernel, 3 * w);
-            } else {
-                let taps: Vec<&[f32]> = (0..kernel.len())
-                    .map(|k| {
-                        let sy = (y as isize + k as isize - radius).clamp(0, h as isize - 1);
-                        src[sy as usize * w..(sy as usize + 1) * w].as_flattened()
-                    })
-                    .collect();
-                isa.weighted_rows(out, &taps, &kernel);
-            }
+            isa.convolve_across_rows(
+                row.as_flattened_mut(),
+                src.as_flattened(),
+                3 * w,
+                y,
+                &kernel,
+            );
         });
         dst
     };

@@ -68,6 +68,25 @@ pub trait Cost: Copy + PartialOrd + Into<f64> + Send + Sync {
             runner_up: if after < runner_up { after } else { runner_up },
         })
     }
+
+    /// [`Cost::winner`] of every pixel of a row, into `out` (`width`
+    /// entries): pixel x's costs are `costs[x * stride..x * stride + n]`,
+    /// `n >= 1`.
+    fn row_winners(
+        costs: &[Self],
+        stride: usize,
+        n: usize,
+        isa: Isa,
+        width: usize,
+        out: &mut Vec<Winner<Self>>,
+    ) {
+        out.clear();
+        out.extend(
+            (0..width)
+                .map_while(|x| costs.get(x * stride..x * stride + n))
+                .map_while(|c| Self::winner(c, isa)),
+        );
+    }
 }
 
 /// The cheapest disparity of a pixel and its nearest rival.
@@ -87,6 +106,28 @@ impl Cost for u16 {
     fn winner(c: &[Self], isa: Isa) -> Option<Winner<Self>> {
         isa.winner_u16(c)
             .map(|(best, k, runner_up)| Winner { best, k, runner_up })
+    }
+
+    fn row_winners(
+        costs: &[Self],
+        stride: usize,
+        n: usize,
+        isa: Isa,
+        width: usize,
+        out: &mut Vec<Winner<Self>>,
+    ) {
+        // The pixels whose costs the row holds, as the default's.
+        let whole = (0..width)
+            .take_while(|x| x * stride + n <= costs.len())
+            .count();
+        let mut found = vec![(u16::MAX, 0, u16::MAX); whole];
+        isa.winners_u16(costs, stride, n, &mut found);
+        out.clear();
+        out.extend(
+            found
+                .into_iter()
+                .map(|(best, k, runner_up)| Winner { best, k, runner_up }),
+        );
     }
 }
 
@@ -115,14 +156,14 @@ pub(crate) fn select_row<T: Cost>(
 ) {
     let n = range.count;
     let u = params.uniqueness_pct / 100.0;
-    let isa = Isa::detect();
+    if n == 0 {
+        return;
+    }
+    let mut found = Vec::with_capacity(width);
+    T::row_winners(costs, stride, n, Isa::detect(), width, &mut found);
     // Winners of the left pixels (k, or n for none).
     let mut winner = vec![n; width];
-    for (x, w) in winner.iter_mut().enumerate() {
-        let c = &costs[x * stride..x * stride + n];
-        let Some(Winner { best, k, runner_up }) = T::winner(c, isa) else {
-            continue;
-        };
+    for (x, (w, &Winner { best, k, runner_up })) in winner.iter_mut().zip(&found).enumerate() {
         let (k_lo, k_hi) = valid_ks(x, width, range);
         if k < k_lo || k >= k_hi {
             continue; // no possible match at all

@@ -116,6 +116,128 @@ impl Isa {
     }
 }
 
+impl Isa {
+    /// [`Isa::winner_u16`] of every pixel of a row: pixel x's costs are
+    /// `costs[x * stride..x * stride + n]` (`n >= 1`), and `out[x]` gets its
+    /// lowest cost, that cost's first index and the lowest cost more than
+    /// one index from it (`u16::MAX` when none). With AVX2 the row runs in
+    /// one call, each pixel's costs in one pass of 16-lane registers that
+    /// keep every lane's lowest, its first index and its second lowest
+    /// (the three searches of [`Isa::winner_u16`] read a pixel's costs three
+    /// times, from a row of sums too large for the first-level cache).
+    pub(crate) fn winners_u16(
+        self,
+        costs: &[u16],
+        stride: usize,
+        n: usize,
+        out: &mut [(u16, usize, u16)],
+    ) {
+        if n == 0 {
+            return;
+        }
+        let fits = out.is_empty() || (out.len() - 1) * stride + n <= costs.len();
+        #[cfg(target_arch = "x86_64")]
+        if self == Isa::Avx2 && (16..=MAX_WINNER_LANES).contains(&n) && fits {
+            // SAFETY: `Isa::Avx2` is only made by `Isa::detect` after the
+            // CPU reported AVX2; the function reads through slices it
+            // bounds-checks itself.
+            return unsafe { winners_u16_avx2(costs, stride, n, out) };
+        }
+        for (x, o) in out.iter_mut().enumerate() {
+            let Some(c) = costs.get(x * stride..x * stride + n) else {
+                return;
+            };
+            if let Some(w) = self.winner_u16(c) {
+                *o = w;
+            }
+        }
+    }
+}
+
+/// The most costs per pixel [`Isa::winners_u16`] takes in registers: their
+/// indices are compared as signed 16-bit lanes.
+const MAX_WINNER_LANES: usize = 1 << 14;
+
+/// [`Isa::winners_u16`] with AVX2, for `16 <= n <= MAX_WINNER_LANES`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn winners_u16_avx2(costs: &[u16], stride: usize, n: usize, out: &mut [(u16, usize, u16)]) {
+    use std::arch::x86_64::*;
+    /// Sixteen costs from the start of `s` (which must hold them).
+    #[inline(always)]
+    fn load(s: &[u16]) -> __m256i {
+        let s = &s[..16];
+        // SAFETY: `s` holds 16 u16 (32 bytes), checked just above; the
+        // unaligned load has no alignment requirement.
+        unsafe { _mm256_loadu_si256(s.as_ptr().cast()) }
+    }
+    /// The lowest of the sixteen lanes.
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn lowest(v: __m256i) -> u16 {
+        let m = _mm_min_epu16(_mm256_castsi256_si128(v), _mm256_extracti128_si256::<1>(v));
+        _mm_cvtsi128_si32(_mm_minpos_epu16(m)) as u16
+    }
+    // One pass over chunks of 16 lanes from 0, and over the lanes past the
+    // last whole chunk (loaded as the last 16 costs, the ones already met
+    // raised to u16::MAX): every cost is met once, in lane `index % 16`, or
+    // `index - (n - 16)` in that last chunk. Each lane keeps its lowest
+    // cost, the first index holding it and its second lowest (equal to the
+    // lowest where two costs share it); no branch the costs decide.
+    let whole = n / 16 * 16;
+    let tail = n - 16;
+    let iota = _mm256_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+    let step = _mm256_set1_epi16(16);
+    let met = _mm256_cmpgt_epi16(_mm256_set1_epi16((whole - tail) as i16), iota);
+    let tail_index = _mm256_add_epi16(_mm256_set1_epi16(tail as i16), iota);
+    let lane_of = |index: usize| {
+        if index < whole {
+            index % 16
+        } else {
+            index - tail
+        }
+    };
+    for (x, o) in out.iter_mut().enumerate() {
+        let c = &costs[x * stride..x * stride + n];
+        let (mut low, mut second, mut first) = (
+            _mm256_set1_epi16(-1),
+            _mm256_set1_epi16(-1),
+            _mm256_setzero_si256(),
+        );
+        let mut index = iota;
+        let mut take = |v: __m256i, index: __m256i| {
+            let lower = _mm256_min_epu16(v, low);
+            // Not lower than the lane's lowest so far: its first index stays.
+            let kept = _mm256_cmpeq_epi16(lower, low);
+            first = _mm256_blendv_epi8(index, first, kept);
+            second = _mm256_min_epu16(second, _mm256_max_epu16(v, low));
+            low = lower;
+        };
+        for s in (0..whole).step_by(16) {
+            take(load(&c[s..]), index);
+            index = _mm256_add_epi16(index, step);
+        }
+        if whole < n {
+            take(_mm256_or_si256(load(&c[tail..]), met), tail_index);
+        }
+        let best = lowest(low);
+        let holds_best = _mm256_cmpeq_epi16(low, _mm256_set1_epi16(best as i16));
+        let k = lowest(_mm256_blendv_epi8(_mm256_set1_epi16(-1), first, holds_best)) as usize;
+        // The runner-up leaves out k - 1 ..= k + 1, three lanes: in each,
+        // its lowest stands unless the cost left out is it, then its
+        // second lowest does.
+        let mut replaced = _mm256_setzero_si256();
+        let beside = k.saturating_sub(1)..(k + 2).min(n);
+        for (left_out, &cost) in beside.clone().zip(&c[beside]) {
+            let in_lane = _mm256_cmpeq_epi16(iota, _mm256_set1_epi16(lane_of(left_out) as i16));
+            let is_low = _mm256_cmpeq_epi16(low, _mm256_set1_epi16(cost as i16));
+            replaced = _mm256_or_si256(replaced, _mm256_and_si256(in_lane, is_low));
+        }
+        let runner_up = lowest(_mm256_blendv_epi8(low, second, replaced));
+        *o = (best, k, runner_up);
+    }
+}
+
 /// [`Isa::window_dots_exact`] with AVX2 for `side <= 16`, where every window
 /// row has 16 px of room in `left` from `x_left` and in `grad` from `c + 1`.
 #[cfg(target_arch = "x86_64")]
@@ -175,6 +297,55 @@ mod tests {
         let mut costs = [0u8; 3];
         isa.hamming_descending(&mut costs, 0b1011, &[0b0000, 0b1000, 0b1011]);
         assert_eq!(costs, [0, 2, 3]);
+    }
+
+    /// The row of winners, on every instruction set, is each pixel's own
+    /// winner: costs with many ties (the first index counts), winners at
+    /// either end and inside, widths that are and are not whole registers.
+    #[test]
+    fn a_rows_winners_are_each_pixels_own() {
+        let mut seed = 11u64;
+        let mut next = |m: u64| {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1);
+            (seed >> 33) % m
+        };
+        for n in [1usize, 2, 3, 15, 16, 17, 31, 32, 48, 64, 100, 128] {
+            let stride = n.div_ceil(16) * 16 + 3;
+            let width = 40;
+            // Half the pixels with many ties, half with nearly none (where
+            // the costs left out beside the winner are often the lowest of
+            // their lane).
+            let mut costs: Vec<u16> = (0..width * stride)
+                .map(|i| {
+                    if i / stride < width / 2 {
+                        5 + next(6) as u16
+                    } else {
+                        next(60_000) as u16
+                    }
+                })
+                .collect();
+            // Pixels 0..3: the lowest at the first, second and last index;
+            // pixel 3 with its neighbours as low as it (ties beside it).
+            for (x, at) in [(0, 0), (1, 1.min(n - 1)), (2, n - 1), (3, n / 2)] {
+                costs[x * stride + at] = 1;
+            }
+            if n > 2 {
+                costs[3 * stride + n / 2 - 1] = 1;
+                costs[3 * stride + (n / 2 + 1).min(n - 1)] = 1;
+            }
+            let expect: Vec<(u16, usize, u16)> = (0..width)
+                .map(|x| {
+                    Isa::Scalar
+                        .winner_u16(&costs[x * stride..x * stride + n])
+                        .unwrap()
+                })
+                .collect();
+            for isa in [Isa::Scalar, Isa::detect()] {
+                let mut got = vec![(0, 0, 0); width];
+                isa.winners_u16(&costs, stride, n, &mut got);
+                assert_eq!(got, expect, "{isa:?}, {n} costs");
+            }
+        }
     }
 
     #[test]

@@ -42,7 +42,9 @@ pub struct RefineParams {
 struct BandSums(Vec<i64>);
 
 impl BandSums {
-    /// From the column sums of a quantity over the band.
+    /// From the column sums of a quantity over the band (what
+    /// [`ColumnSums::windows`] gives for each, written plainly).
+    #[cfg(test)]
     fn from_columns(columns: &[i32]) -> Self {
         let mut prefix = Vec::with_capacity(columns.len() + 1);
         let mut total = 0i64;
@@ -88,8 +90,17 @@ impl<'a> ColumnSums<'a> {
         sums
     }
 
-    /// Adds row `y` (sign 1) or removes it (sign -1).
+    /// Adds row `y` (sign 1) or removes it (sign -1): a pass per quantity
+    /// over the row, which vectorises (the last column's products with the
+    /// next column are 0, so those passes stop a column short).
     fn add_row(&mut self, y: usize, sign: i32) {
+        /// `col[x] += sign * terms[x]`.
+        #[inline(always)]
+        fn accumulate(col: &mut [i32], sign: i32, terms: impl Iterator<Item = i32>) {
+            for (c, t) in col.iter_mut().zip(terms) {
+                *c += sign * t;
+            }
+        }
         let w = self.w;
         let [lf, rf, gx] = self.images;
         let (l, r, g) = (
@@ -97,23 +108,32 @@ impl<'a> ColumnSums<'a> {
             &rf[y * w..(y + 1) * w],
             &gx[y * w..(y + 1) * w],
         );
-        for x in 0..w {
-            let (lv, rv, gv) = (l[x] as i32, r[x] as i32, g[x] as i32);
-            let (r1, g1) = if x + 1 < w {
-                (r[x + 1] as i32, g[x + 1] as i32)
-            } else {
-                (0, 0)
-            };
-            let terms = [lv, rv, gv, gv * gv, gv * g1, gv * rv, gv * r1, g1 * rv];
-            for (c, t) in self.cols.iter_mut().zip(terms) {
-                c[x] += sign * t;
-            }
-        }
+        let (r1, g1) = (&r[1..], &g[1..]);
+        let wide = |v: &i16| *v as i32;
+        let times = |(a, b): (&i16, &i16)| *a as i32 * *b as i32;
+        let [c_l, c_r, c_g, c_gg, c_g_g1, c_g_r, c_g_r1, c_g1_r] = &mut self.cols;
+        accumulate(c_l, sign, l.iter().map(wide));
+        accumulate(c_r, sign, r.iter().map(wide));
+        accumulate(c_g, sign, g.iter().map(wide));
+        accumulate(c_gg, sign, g.iter().zip(g).map(times));
+        accumulate(c_g_g1, sign, g.iter().zip(g1).map(times));
+        accumulate(c_g_r, sign, g.iter().zip(r).map(times));
+        accumulate(c_g_r1, sign, g.iter().zip(r1).map(times));
+        accumulate(c_g1_r, sign, g1.iter().zip(r).map(times));
     }
 
-    /// Window sums along the band.
+    /// Window sums along the band: the eight prefix sums taken together,
+    /// eight independent chains of additions rather than one after another.
     fn windows(&self) -> [BandSums; 8] {
-        std::array::from_fn(|q| BandSums::from_columns(&self.cols[q]))
+        let mut prefix: [Vec<i64>; 8] = std::array::from_fn(|_| vec![0i64; self.w + 1]);
+        let mut total = [0i64; 8];
+        for x in 0..self.w {
+            for q in 0..8 {
+                total[q] += self.cols[q][x] as i64;
+                prefix[q][x + 1] = total[q];
+            }
+        }
+        prefix.map(BandSums)
     }
 }
 
@@ -400,6 +420,52 @@ mod tests {
                 .flat_map(|y| (0..4).map(move |x| (x + 10 * y) as f64))
                 .sum::<f64>()
         );
+    }
+
+    /// A band slid down row by row holds the sums of a band built afresh,
+    /// each term as its definition has it (the products with the next
+    /// column 0 in the last), and its window sums are each quantity's
+    /// prefix sums.
+    #[test]
+    fn a_sliding_band_holds_each_quantitys_sums() {
+        let (w, h, rows) = (13usize, 9usize, 4usize);
+        let image = |seed: i32| -> Vec<i16> {
+            (0..w * h)
+                .map(|i| ((i as i32 * 37 + seed * 11) % 255 - seed) as i16)
+                .collect()
+        };
+        let (l, r, g) = (image(1), image(2), image(100));
+        let images = [&l[..], &r[..], &g[..]];
+        let mut band = ColumnSums::band(images, w, 0, rows);
+        for y0 in 1..=h - rows {
+            band.add_row(y0 + rows - 1, 1);
+            band.add_row(y0 - 1, -1);
+            let fresh = ColumnSums::band(images, w, y0, rows);
+            assert_eq!(band.cols, fresh.cols, "band from row {y0}");
+            let at = |img: &[i16], x: usize, y: usize| {
+                if x < w { img[y * w + x] as i32 } else { 0 }
+            };
+            for x in 0..w {
+                let by_definition: [i32; 8] = (y0..y0 + rows).fold([0; 8], |mut s, y| {
+                    let (lv, rv, gv) = (at(&l, x, y), at(&r, x, y), at(&g, x, y));
+                    let (r1, g1) = (at(&r, x + 1, y), at(&g, x + 1, y));
+                    let terms = [lv, rv, gv, gv * gv, gv * g1, gv * rv, gv * r1, g1 * rv];
+                    for (a, t) in s.iter_mut().zip(terms) {
+                        *a += t;
+                    }
+                    s
+                });
+                for q in 0..8 {
+                    assert_eq!(
+                        band.cols[q][x], by_definition[q],
+                        "quantity {q}, column {x}"
+                    );
+                }
+            }
+            for (q, windows) in band.windows().iter().enumerate() {
+                assert_eq!(windows.0, BandSums::from_columns(&band.cols[q]).0);
+            }
+        }
     }
 
     #[test]

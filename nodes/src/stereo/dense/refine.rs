@@ -455,11 +455,8 @@ mod tests {
                     }
                     s
                 });
-                for q in 0..8 {
-                    assert_eq!(
-                        band.cols[q][x], by_definition[q],
-                        "quantity {q}, column {x}"
-                    );
+                for (q, &expect) in by_definition.iter().enumerate() {
+                    assert_eq!(band.cols[q][x], expect, "quantity {q}, column {x}");
                 }
             }
             for (q, windows) in band.windows().iter().enumerate() {

@@ -57,7 +57,7 @@ pub trait Cost: Copy + PartialOrd + Into<f64> + Send + Sync {
     /// The lowest cost of `c` and its first index (`None` when `c` is
     /// empty), and the lowest cost more than one index away from it
     /// ([`Cost::WORST`] when there is none).
-    fn winner(c: &[Self], _isa: Isa) -> Option<Winner<Self>> {
+    fn winner(c: &[Self]) -> Option<Winner<Self>> {
         let best = lowest(c);
         let k = c.iter().position(|&v| v == best)?;
         let runner_up = lowest(&c[..k.saturating_sub(1)]);
@@ -71,12 +71,12 @@ pub trait Cost: Copy + PartialOrd + Into<f64> + Send + Sync {
 
     /// [`Cost::winner`] of every pixel of a row, into `out` (`width`
     /// entries): pixel x's costs are `costs[x * stride..x * stride + n]`,
-    /// `n >= 1`.
+    /// `n >= 1`. A cost type may take the row with `isa`'s kernels.
     fn row_winners(
         costs: &[Self],
         stride: usize,
         n: usize,
-        isa: Isa,
+        _isa: Isa,
         width: usize,
         out: &mut Vec<Winner<Self>>,
     ) {
@@ -84,7 +84,7 @@ pub trait Cost: Copy + PartialOrd + Into<f64> + Send + Sync {
         out.extend(
             (0..width)
                 .map_while(|x| costs.get(x * stride..x * stride + n))
-                .map_while(|c| Self::winner(c, isa)),
+                .map_while(Self::winner),
         );
     }
 }
@@ -102,11 +102,6 @@ pub struct Winner<T> {
 
 impl Cost for u16 {
     const WORST: Self = u16::MAX;
-
-    fn winner(c: &[Self], isa: Isa) -> Option<Winner<Self>> {
-        isa.winner_u16(c)
-            .map(|(best, k, runner_up)| Winner { best, k, runner_up })
-    }
 
     fn row_winners(
         costs: &[Self],

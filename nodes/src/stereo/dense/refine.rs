@@ -36,32 +36,48 @@ pub struct RefineParams {
     pub max_change_px: f32,
 }
 
-/// Window sums over one band of rows: `window(x0, side)` is the sum of a
-/// quantity over columns `x0 .. x0 + side` of the band's rows (prefix sums
-/// over x of its column sums).
-struct BandSums(Vec<i64>);
+/// The eight quantities' window sums over one band of rows, interleaved:
+/// entry `x` holds, for each quantity (in [`ColumnSums`]' order), its sum over
+/// columns `0 .. x` of the band's rows. Every sum is of integers well under
+/// 2^53, so it is exact in f64, and a window's sum, the difference of two
+/// entries, is the same number an integer sum would give; one pixel's eight
+/// window sums are then four vector loads and subtractions.
+struct BandSums(Vec<[f64; 8]>);
 
 impl BandSums {
-    /// From the column sums of a quantity over the band (what
-    /// [`ColumnSums::windows`] gives for each, written plainly).
+    /// From the column sums of each quantity over the band (what
+    /// [`ColumnSums::windows`] gives, written plainly).
     #[cfg(test)]
-    fn from_columns(columns: &[i32]) -> Self {
-        let mut prefix = Vec::with_capacity(columns.len() + 1);
-        let mut total = 0i64;
-        prefix.push(0);
-        for &c in columns {
-            total += c as i64;
-            prefix.push(total);
+    fn from_columns(columns: &[Vec<i32>; 8]) -> Self {
+        let w = columns[0].len();
+        let mut prefix = vec![[0.0; 8]; w + 1];
+        for (q, column) in columns.iter().enumerate() {
+            let mut total = 0i64;
+            for (x, &c) in column.iter().enumerate() {
+                total += c as i64;
+                prefix[x + 1][q] = total as f64;
+            }
         }
         BandSums(prefix)
     }
 
-    /// Sum over columns `x0 .. x0 + side` of the band.
-    #[inline]
-    fn window(&self, x0: usize, side: usize) -> f64 {
-        (self.0[x0 + side] - self.0[x0]) as f64
+    /// Each quantity's sum over columns `x0 .. x0 + side` of the band.
+    #[inline(always)]
+    fn window(&self, x0: usize, side: usize) -> [f64; 8] {
+        let (before, through) = (&self.0[x0], &self.0[x0 + side]);
+        std::array::from_fn(|q| through[q] - before[q])
     }
 }
+
+/// Indices of the quantities in [`BandSums`] and [`ColumnSums`].
+const L: usize = 0;
+const R: usize = 1;
+const G: usize = 2;
+const GG: usize = 3;
+const G_G1: usize = 4;
+const G_R: usize = 5;
+const G_R1: usize = 6;
+const G1_R: usize = 7;
 
 /// Column sums over a band of rows of the eight quantities Gauss-Newton needs
 /// besides the left-gradient products: left, right, g, g^2, g x next g,
@@ -124,16 +140,16 @@ impl<'a> ColumnSums<'a> {
 
     /// Window sums along the band: the eight prefix sums taken together,
     /// eight independent chains of additions rather than one after another.
-    fn windows(&self) -> [BandSums; 8] {
-        let mut prefix: [Vec<i64>; 8] = std::array::from_fn(|_| vec![0i64; self.w + 1]);
-        let mut total = [0i64; 8];
+    fn windows(&self) -> BandSums {
+        let mut prefix = vec![[0.0f64; 8]; self.w + 1];
+        let mut total = [0.0f64; 8];
         for x in 0..self.w {
             for q in 0..8 {
-                total[q] += self.cols[q][x] as i64;
-                prefix[q][x + 1] = total[q];
+                total[q] += self.cols[q][x] as f64;
             }
+            prefix[x + 1] = total;
         }
-        prefix.map(BandSums)
+        BandSums(prefix)
     }
 }
 
@@ -209,21 +225,6 @@ pub fn refine_disparity(
         .sum()
 }
 
-/// The window sums of one pixel at one integer start c of its right window
-/// (index 0 at c, 1 at c + 1), which every Gauss-Newton step with that c
-/// mixes by its own fraction.
-#[derive(Debug, Clone, Copy, Default)]
-struct WindowSums {
-    r: [f64; 2],
-    g: [f64; 2],
-    gg: [f64; 2],
-    g_g1: f64,
-    g_r: [f64; 2],
-    g_r1: f64,
-    g1_r: f64,
-    g_l: [f64; 2],
-}
-
 /// A pixel of a row in flight through the Gauss-Newton steps.
 #[derive(Debug, Clone, Copy)]
 struct InFlight {
@@ -237,18 +238,19 @@ struct InFlight {
     sl: f64,
     /// Where it is.
     state: State,
-    /// The integer start of the right window `sums` are of (`usize::MAX`:
+    /// The integer start of the right window `dots` are of (`usize::MAX`:
     /// none yet).
     at: usize,
-    /// The window sums at `at`.
-    sums: WindowSums,
-    /// This step's fraction of a pixel past `at`, and one less it.
-    t: f64,
-    u: f64,
-    /// This step's shift, px, and the right gradient's variance it divided
-    /// by (four times it, as the sums are of twice the gradient).
-    delta: f64,
+    /// The left window's products with (twice) the right gradient over the
+    /// right windows at `at` and `at + 1`.
+    dots: [f64; 2],
+    /// This step's numerator (the gradient's covariance with the residual,
+    /// scaled as `var_g`) and the right gradient's variance it divides by
+    /// (four times it, as the sums are of twice the gradient).
+    num: f64,
     var_g: f64,
+    /// This step's shift, px.
+    delta: f64,
 }
 
 /// Where a pixel's Gauss-Newton steps have left it.
@@ -266,16 +268,16 @@ enum State {
 /// Refines the valid disparities in `columns` of one row (its windows' rows
 /// start at `y0`) with the band's window sums; returns how many it refined.
 /// The row's pixels take each step together, in three passes (`flying` is
-/// scratch): the window sums pixel by pixel, the step's arithmetic for
-/// all of them without a branch, then what the step means for each. Step
-/// by step, pixel after pixel waited on its division and on the branches
-/// that hang on it, which the data decide.
+/// scratch): the window sums and the step's two sides pixel by pixel, the
+/// divisions for all of them without a branch, then what the step means for
+/// each. Step by step, pixel after pixel waited on its division and on the
+/// branches that hang on it, which the data decide.
 #[allow(clippy::too_many_arguments)]
 fn refine_row(
     row: &mut [f32],
     columns: std::ops::Range<usize>,
     y0: usize,
-    sums: &[BandSums; 8],
+    sums: &BandSums,
     lf: &[i16],
     gx: &[i16],
     w: usize,
@@ -286,16 +288,6 @@ fn refine_row(
     flying: &mut Vec<InFlight>,
 ) -> usize {
     let r = side / 2;
-    let [
-        sum_l,
-        sum_r,
-        sum_g,
-        sum_gg,
-        sum_g_g1,
-        sum_g_r,
-        sum_g_r1,
-        sum_g1_r,
-    ] = sums;
     // Divisions are slow: one per step, not three.
     let inv_n = 1.0 / n;
     flying.clear();
@@ -309,14 +301,13 @@ fn refine_row(
                 x,
                 d0,
                 d: d0 as f64,
-                sl: sum_l.window(x - r, side),
+                sl: sums.window(x - r, side)[L],
                 state: State::Moving,
                 at: usize::MAX,
-                sums: WindowSums::default(),
-                t: 0.0,
-                u: 0.0,
-                delta: 0.0,
+                dots: [0.0; 2],
+                num: 0.0,
                 var_g: 0.0,
+                delta: 0.0,
             }),
     );
     for _ in 0..params.iterations {
@@ -331,41 +322,40 @@ fn refine_row(
             }
             moving += 1;
             let c = xs as usize;
-            p.t = xs - c as f64;
-            p.u = 1.0 - p.t;
-            // The sums at c (the same c as the last step needs no new sums).
+            let t = xs - c as f64;
+            let u = 1.0 - t;
+            // The same c as the last step needs no new products, and a
+            // neighbouring one only one.
             if p.at != c {
-                let (dot0, dot1) = isa.window_dots(lf, gx, w, p.x - r, c, y0, side);
-                let at = |b: &BandSums| [b.window(c, side), b.window(c + 1, side)];
-                p.sums = WindowSums {
-                    r: at(sum_r),
-                    g: at(sum_g),
-                    gg: at(sum_gg),
-                    g_g1: sum_g_g1.window(c, side),
-                    g_r: at(sum_g_r),
-                    g_r1: sum_g_r1.window(c, side),
-                    g1_r: sum_g1_r.window(c, side),
-                    g_l: [dot0 as f64, dot1 as f64],
+                let dots = |at: usize| isa.window_dots(lf, gx, w, p.x - r, at, y0, side);
+                p.dots = if p.at != usize::MAX && c == p.at + 1 {
+                    [p.dots[1], dots(c + 1)[0] as f64]
+                } else if c + 1 == p.at {
+                    [dots(c)[0] as f64, p.dots[0]]
+                } else {
+                    dots(c).map(|v| v as f64)
                 };
                 p.at = c;
             }
+            // The window sums at c and c + 1, mixed by this step's fraction.
+            let (k0, k1, gl) = (sums.window(c, side), sums.window(c + 1, side), p.dots);
+            let s_r = p.sl - u * k0[R] - t * k1[R];
+            let s_g = u * k0[G] + t * k1[G];
+            let s_gg = u * u * k0[GG] + 2.0 * t * u * k0[G_G1] + t * t * k1[GG];
+            let s_gr = u * gl[0] + t * gl[1]
+                - (u * u * k0[G_R] + t * u * (k0[G_R1] + k0[G1_R]) + t * t * k1[G_R]);
+            // The sums with g are of twice the gradient: var_g is four
+            // times the gradient's variance, s_gr and s_g twice theirs.
+            p.var_g = s_gg - s_g * s_g * inv_n;
+            p.num = s_gr - s_g * s_r * inv_n;
         }
         if moving == 0 {
             break;
         }
         // Every pixel's step (those no longer moving are not read).
+        // res(d + delta) ~ res + g delta (I_R is sampled at x - d - delta).
         for p in flying.iter_mut() {
-            let (k, t, u) = (&p.sums, p.t, p.u);
-            let s_r = p.sl - u * k.r[0] - t * k.r[1];
-            let s_g = u * k.g[0] + t * k.g[1];
-            let s_gg = u * u * k.gg[0] + 2.0 * t * u * k.g_g1 + t * t * k.gg[1];
-            let s_gr = u * k.g_l[0] + t * k.g_l[1]
-                - (u * u * k.g_r[0] + t * u * (k.g_r1 + k.g1_r) + t * t * k.g_r[1]);
-            // The sums with g are of twice the gradient: var_g is four
-            // times the gradient's variance, s_gr and s_g twice theirs.
-            p.var_g = s_gg - s_g * s_g * inv_n;
-            // res(d + delta) ~ res + g delta (I_R is sampled at x - d - delta).
-            p.delta = -2.0 * (s_gr - s_g * s_r * inv_n) / p.var_g;
+            p.delta = -2.0 * p.num / p.var_g;
         }
         for p in flying.iter_mut().filter(|p| p.state == State::Moving) {
             if p.var_g < 4e-3 * n {
@@ -402,23 +392,28 @@ mod tests {
         128.0 + 60.0 * v
     }
 
+    /// Each quantity's window sums over a band; quantity q holds q times
+    /// the first's values, so a mix-up of quantities shows.
     #[test]
     fn band_windows() {
         let band = |y0: usize, rows: usize| {
             let cols: Vec<i32> = (0..5)
                 .map(|x| (y0..y0 + rows).map(|y| (x + 10 * y) as i32).sum())
                 .collect();
-            BandSums::from_columns(&cols)
+            BandSums::from_columns(&std::array::from_fn(|q| {
+                cols.iter().map(|&c| c * q as i32).collect()
+            }))
         };
         let t = band(2, 2);
         // Columns 1..3, rows 2..4: (21 + 22) + (31 + 32).
-        assert_eq!(t.window(1, 2), 106.0);
+        assert_eq!(t.window(1, 2), std::array::from_fn(|q| 106.0 * q as f64));
         let whole = band(0, 4);
+        let total = (0..4)
+            .flat_map(|y| (0..4).map(move |x| (x + 10 * y) as f64))
+            .sum::<f64>();
         assert_eq!(
             whole.window(0, 4),
-            (0..4)
-                .flat_map(|y| (0..4).map(move |x| (x + 10 * y) as f64))
-                .sum::<f64>()
+            std::array::from_fn(|q| total * q as f64)
         );
     }
 
@@ -459,9 +454,7 @@ mod tests {
                     assert_eq!(band.cols[q][x], expect, "quantity {q}, column {x}");
                 }
             }
-            for (q, windows) in band.windows().iter().enumerate() {
-                assert_eq!(windows.0, BandSums::from_columns(&band.cols[q]).0);
-            }
+            assert_eq!(band.windows().0, BandSums::from_columns(&band.cols).0);
         }
     }
 

@@ -42,34 +42,6 @@ kernels! {
         }
     }
 
-    /// Sums over a `side x side` window (rows `y0..`) of the left image
-    /// `left` (columns from `x_left`) times the gradient `grad` (columns from
-    /// `c`, and from `c + 1`), images `w` px wide: the two products the
-    /// sub-pixel refinement cannot take from prefix sums. Exact in i32 for
-    /// grey levels times differences of grey levels over up to 31 x 31 px.
-    fn window_dots_exact(
-        left: &[i16],
-        grad: &[i16],
-        w: usize,
-        x_left: usize,
-        c: usize,
-        y0: usize,
-        side: usize,
-    ) -> (i32, i32) {
-        let (mut dot0, mut dot1) = (0i32, 0i32);
-        for j in 0..side {
-            let base = (y0 + j) * w;
-            let l = &left[base + x_left..base + x_left + side];
-            let g0 = &grad[base + c..base + c + side];
-            let g1 = &grad[base + c + 1..base + c + 1 + side];
-            for i in 0..side {
-                dot0 += l[i] as i32 * g0[i] as i32;
-                dot1 += l[i] as i32 * g1[i] as i32;
-            }
-        }
-        (dot0, dot1)
-    }
-
     /// The lowest of `c`, its first index, and the lowest more than one index
     /// from it (`u16::MAX` when none); `None` for an empty `c`. Whole-vector
     /// minima, then a search of the one 16-lane block that holds the winner.
@@ -87,12 +59,14 @@ kernels! {
 }
 
 impl Isa {
-    /// [`Isa::window_dots_exact`]; with AVX2, a window up to 16 px wide whose
-    /// rows have 16 px of room in both images takes one multiply-add
-    /// instruction per row and product (the compiler's own vector code for
-    /// 9-wide rows was a quarter as fast).
+    /// Sums over a `side x side` window (rows `y0..`) of the left image
+    /// `left` (columns from `x_left`) times the gradient `grad` (columns from
+    /// `c`, `c + 1`, ... up to `c + N - 1`), images `w` px wide: the
+    /// products the sub-pixel refinement cannot take from prefix sums. Exact
+    /// in i32 for grey levels times differences of grey levels over up to
+    /// 31 x 31 px.
     #[allow(clippy::too_many_arguments)]
-    pub(crate) fn window_dots(
+    fn window_dots_exact<const N: usize>(
         self,
         left: &[i16],
         grad: &[i16],
@@ -101,11 +75,41 @@ impl Isa {
         c: usize,
         y0: usize,
         side: usize,
-    ) -> (i32, i32) {
+    ) -> [i32; N] {
+        let mut dots = [0i32; N];
+        for j in 0..side {
+            let base = (y0 + j) * w;
+            let l = &left[base + x_left..base + x_left + side];
+            for (k, dot) in dots.iter_mut().enumerate() {
+                let g = &grad[base + c + k..base + c + k + side];
+                for i in 0..side {
+                    *dot += l[i] as i32 * g[i] as i32;
+                }
+            }
+        }
+        dots
+    }
+
+    /// [`Isa::window_dots_exact`]; with AVX2, a window up to 16 px wide whose
+    /// rows have 16 px of room in both images takes one multiply-add
+    /// instruction per row and product (the compiler's own vector code for
+    /// 9-wide rows was a quarter as fast).
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    pub(crate) fn window_dots<const N: usize>(
+        self,
+        left: &[i16],
+        grad: &[i16],
+        w: usize,
+        x_left: usize,
+        c: usize,
+        y0: usize,
+        side: usize,
+    ) -> [i32; N] {
         #[cfg(target_arch = "x86_64")]
         if self == Isa::Avx2 && side <= 16 && side > 0 {
             let last = (y0 + side - 1) * w;
-            if last + x_left + 16 <= left.len() && last + c + 17 <= grad.len() {
+            if last + x_left + 16 <= left.len() && last + c + N + 15 <= grad.len() {
                 // SAFETY: `Isa::Avx2` is only made by `Isa::detect` after the
                 // CPU reported AVX2; the function reads through slices it
                 // bounds-checks itself.
@@ -239,10 +243,11 @@ fn winners_u16_avx2(costs: &[u16], stride: usize, n: usize, out: &mut [(u16, usi
 }
 
 /// [`Isa::window_dots_exact`] with AVX2 for `side <= 16`, where every window
-/// row has 16 px of room in `left` from `x_left` and in `grad` from `c + 1`.
+/// row has 16 px of room in `left` from `x_left` and in `grad` from
+/// `c + N - 1`.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn window_dots_avx2(
+fn window_dots_avx2<const N: usize>(
     left: &[i16],
     grad: &[i16],
     w: usize,
@@ -250,7 +255,7 @@ fn window_dots_avx2(
     c: usize,
     y0: usize,
     side: usize,
-) -> (i32, i32) {
+) -> [i32; N] {
     use std::arch::x86_64::*;
     /// Sixteen values from the start of `s` (which must hold them).
     #[inline(always)]
@@ -262,23 +267,23 @@ fn window_dots_avx2(
     }
     let keep: [i16; 16] = std::array::from_fn(|q| if q < side { -1 } else { 0 });
     let keep = load(&keep);
-    let (mut acc0, mut acc1) = (_mm256_setzero_si256(), _mm256_setzero_si256());
+    let mut acc = [_mm256_setzero_si256(); N];
     for j in 0..side {
         let base = (y0 + j) * w;
         // The left row masked to the window: lanes past it multiply to 0.
         let l = _mm256_and_si256(load(&left[base + x_left..]), keep);
-        let g0 = load(&grad[base + c..]);
-        let g1 = load(&grad[base + c + 1..]);
-        acc0 = _mm256_add_epi32(acc0, _mm256_madd_epi16(l, g0));
-        acc1 = _mm256_add_epi32(acc1, _mm256_madd_epi16(l, g1));
+        for (k, acc) in acc.iter_mut().enumerate() {
+            let g = load(&grad[base + c + k..]);
+            *acc = _mm256_add_epi32(*acc, _mm256_madd_epi16(l, g));
+        }
     }
-    let total = |v: __m256i| {
-        let mut lanes = [0i32; 8];
-        // SAFETY: `lanes` is 8 i32 (32 bytes); unaligned store.
-        unsafe { _mm256_storeu_si256(lanes.as_mut_ptr().cast(), v) };
-        lanes.iter().sum()
-    };
-    (total(acc0), total(acc1))
+    acc.map(|v| {
+        // The eight lanes' sum: halves added, then pairs.
+        let half = _mm_add_epi32(_mm256_castsi256_si128(v), _mm256_extracti128_si256(v, 1));
+        let pairs = _mm_add_epi32(half, _mm_shuffle_epi32(half, 0b01_00_11_10));
+        let one = _mm_add_epi32(pairs, _mm_shuffle_epi32(pairs, 0b10_11_00_01));
+        _mm_cvtsi128_si32(one)
+    })
 }
 
 #[cfg(test)]
@@ -359,12 +364,13 @@ mod tests {
         let left: Vec<i16> = (0..w * h).map(|_| next(256)).collect();
         let grad: Vec<i16> = (0..w * h).map(|_| next(511) - 255).collect();
         let by_hand = |x_left: usize, c: usize, y0: usize, side: usize| {
-            let mut dots = (0i32, 0i32);
+            let mut dots = [0i32; 3];
             for j in 0..side {
                 for i in 0..side {
                     let l = left[(y0 + j) * w + x_left + i] as i32;
-                    dots.0 += l * grad[(y0 + j) * w + c + i] as i32;
-                    dots.1 += l * grad[(y0 + j) * w + c + 1 + i] as i32;
+                    for (k, dot) in dots.iter_mut().enumerate() {
+                        *dot += l * grad[(y0 + j) * w + c + k + i] as i32;
+                    }
                 }
             }
             dots
@@ -372,14 +378,19 @@ mod tests {
         // Windows with room for whole vectors and windows against the
         // image's end (the exact-width path), 1 to 16 px wide.
         for side in [1usize, 3, 9, 15, 16] {
-            for (x_left, c, y0) in [(0, 2, 0), (5, 1, 3), (w - side, w - side - 1, h - side)] {
-                let expect = by_hand(x_left, c, y0, side);
+            for (x_left, c, y0) in [(0, 2, 0), (5, 1, 3), (w - side, w - side - 2, h - side)] {
+                let [d0, d1, d2] = by_hand(x_left, c, y0, side);
                 for isa in [Isa::Scalar, Isa::detect()] {
+                    let at = format!("{isa:?} side {side} at ({x_left}, {c}, {y0})");
                     assert_eq!(
                         isa.window_dots(&left, &grad, w, x_left, c, y0, side),
-                        expect,
-                        "{isa:?} side {side} at ({x_left}, {c}, {y0})"
+                        [d0],
+                        "{at}"
                     );
+                    let two = isa.window_dots(&left, &grad, w, x_left, c, y0, side);
+                    assert_eq!(two, [d0, d1], "{at}");
+                    let three = isa.window_dots(&left, &grad, w, x_left, c, y0, side);
+                    assert_eq!(three, [d0, d1, d2], "{at}");
                 }
             }
         }

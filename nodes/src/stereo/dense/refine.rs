@@ -138,18 +138,10 @@ impl<'a> ColumnSums<'a> {
         accumulate(c_g1_r, sign, g1.iter().zip(r).map(times));
     }
 
-    /// Window sums along the band: the eight prefix sums taken together,
-    /// eight independent chains of additions rather than one after another.
-    fn windows(&self) -> BandSums {
-        let mut prefix = vec![[0.0f64; 8]; self.w + 1];
-        let mut total = [0.0f64; 8];
-        for x in 0..self.w {
-            for q in 0..8 {
-                total[q] += self.cols[q][x] as f64;
-            }
-            prefix[x + 1] = total;
-        }
-        BandSums(prefix)
+    /// Window sums along the band (into `table`, reused from row to row).
+    fn windows(&self, isa: Isa, table: &mut BandSums) {
+        let cols: [&[i32]; 8] = std::array::from_fn(|q| &self.cols[q][..]);
+        isa.prefix_sums8(cols, &mut table.0);
     }
 }
 
@@ -191,6 +183,7 @@ pub fn refine_disparity(
             let mut refined = 0;
             let mut band: Option<ColumnSums> = None;
             let mut flying = Vec::new();
+            let mut table = BandSums(Vec::new());
             for (k, row) in block.chunks_mut(w).enumerate() {
                 let y = b * BLOCK_ROWS + k;
                 if y < r || y + r >= h {
@@ -205,11 +198,12 @@ pub fn refine_disparity(
                     None => band = Some(ColumnSums::band(images, w, y0, side)),
                 }
                 let Some(sums) = &band else { continue };
+                sums.windows(isa, &mut table);
                 refined += refine_row(
                     row,
                     r..w - r,
                     y0,
-                    &sums.windows(),
+                    &table,
                     &li,
                     &g2,
                     w,
@@ -454,7 +448,9 @@ mod tests {
                     assert_eq!(band.cols[q][x], expect, "quantity {q}, column {x}");
                 }
             }
-            assert_eq!(band.windows().0, BandSums::from_columns(&band.cols).0);
+            let mut table = BandSums(Vec::new());
+            band.windows(Isa::detect(), &mut table);
+            assert_eq!(table.0, BandSums::from_columns(&band.cols).0);
         }
     }
 

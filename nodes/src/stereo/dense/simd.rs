@@ -121,6 +121,117 @@ impl Isa {
 }
 
 impl Isa {
+    /// Running sums along x of eight columns of integers, interleaved:
+    /// `out[0]` is 0 and `out[x + 1][q]` the sum of `cols[q][..=x]`, each
+    /// added from the left in f64 (exact while the sums stay under 2^53).
+    /// `out` is as long as the shortest column and one more. With AVX2, eight
+    /// columns at a time are transposed so that a position's eight values
+    /// are added as two vectors.
+    pub(crate) fn prefix_sums8(self, cols: [&[i32]; 8], out: &mut Vec<[f64; 8]>) {
+        let w = cols.iter().map(|c| c.len()).min().unwrap_or(0);
+        out.clear();
+        out.resize(w + 1, [0.0; 8]);
+        let mut total = [0.0f64; 8];
+        let mut done = 0;
+        #[cfg(target_arch = "x86_64")]
+        if self == Isa::Avx2 {
+            // SAFETY: `Isa::Avx2` is only made by `Isa::detect` after the CPU
+            // reported AVX2; the function reads and writes through slices.
+            done = unsafe { prefix_sums8_avx2(cols, &mut out[1..], &mut total) };
+        }
+        for x in done..w {
+            for q in 0..8 {
+                total[q] += cols[q][x] as f64;
+            }
+            out[x + 1] = total;
+        }
+    }
+}
+
+/// [`Isa::prefix_sums8`]'s whole blocks of eight positions into `out` (from
+/// position 0, each entry the sums through its position), carrying `total`;
+/// returns how many positions it did.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn prefix_sums8_avx2(cols: [&[i32]; 8], out: &mut [[f64; 8]], total: &mut [f64; 8]) -> usize {
+    use std::arch::x86_64::*;
+    let blocks = out
+        .len()
+        .min(cols.iter().map(|c| c.len()).min().unwrap_or(0))
+        / 8;
+    // SAFETY: `total` is 8 f64 (64 bytes); unaligned loads.
+    let (mut low, mut high) = unsafe {
+        (
+            _mm256_loadu_pd(total[..4].as_ptr()),
+            _mm256_loadu_pd(total[4..].as_ptr()),
+        )
+    };
+    for b in 0..blocks {
+        let x = b * 8;
+        let r: [__m256i; 8] = std::array::from_fn(|q| {
+            let c = &cols[q][x..x + 8];
+            // SAFETY: `c` holds 8 i32 (32 bytes); unaligned load.
+            unsafe { _mm256_loadu_si256(c.as_ptr().cast()) }
+        });
+        // 8 x 8 transpose: t pairs quantities, u fours, v whole positions.
+        let t = |a: usize, f: fn(__m256i, __m256i) -> __m256i| f(r[a], r[a + 1]);
+        let (t0, t1) = (
+            t(0, |a, b| _mm256_unpacklo_epi32(a, b)),
+            t(0, |a, b| _mm256_unpackhi_epi32(a, b)),
+        );
+        let (t2, t3) = (
+            t(2, |a, b| _mm256_unpacklo_epi32(a, b)),
+            t(2, |a, b| _mm256_unpackhi_epi32(a, b)),
+        );
+        let (t4, t5) = (
+            t(4, |a, b| _mm256_unpacklo_epi32(a, b)),
+            t(4, |a, b| _mm256_unpackhi_epi32(a, b)),
+        );
+        let (t6, t7) = (
+            t(6, |a, b| _mm256_unpacklo_epi32(a, b)),
+            t(6, |a, b| _mm256_unpackhi_epi32(a, b)),
+        );
+        let u = [
+            _mm256_unpacklo_epi64(t0, t2),
+            _mm256_unpackhi_epi64(t0, t2),
+            _mm256_unpacklo_epi64(t1, t3),
+            _mm256_unpackhi_epi64(t1, t3),
+            _mm256_unpacklo_epi64(t4, t6),
+            _mm256_unpackhi_epi64(t4, t6),
+            _mm256_unpacklo_epi64(t5, t7),
+            _mm256_unpackhi_epi64(t5, t7),
+        ];
+        // Position k of the block: u[k % 4]'s and u[k % 4 + 4]'s low (k < 4)
+        // or high 128 bits.
+        let position = |k: usize| {
+            let (a, b) = (u[k % 4], u[k % 4 + 4]);
+            if k < 4 {
+                _mm256_permute2x128_si256(a, b, 0x20)
+            } else {
+                _mm256_permute2x128_si256(a, b, 0x31)
+            }
+        };
+        for k in 0..8 {
+            let v = position(k);
+            low = _mm256_add_pd(low, _mm256_cvtepi32_pd(_mm256_castsi256_si128(v)));
+            high = _mm256_add_pd(high, _mm256_cvtepi32_pd(_mm256_extracti128_si256(v, 1)));
+            let entry = &mut out[x + k];
+            // SAFETY: `entry` is 8 f64 (64 bytes); unaligned stores.
+            unsafe {
+                _mm256_storeu_pd(entry[..4].as_mut_ptr(), low);
+                _mm256_storeu_pd(entry[4..].as_mut_ptr(), high);
+            }
+        }
+    }
+    // SAFETY: `total` is 8 f64; unaligned stores.
+    unsafe {
+        _mm256_storeu_pd(total[..4].as_mut_ptr(), low);
+        _mm256_storeu_pd(total[4..].as_mut_ptr(), high);
+    }
+    blocks * 8
+}
+
+impl Isa {
     /// [`Isa::winner_u16`] of every pixel of a row: pixel x's costs are
     /// `costs[x * stride..x * stride + n]` (`n >= 1`), and `out[x]` gets its
     /// lowest cost, that cost's first index and the lowest cost more than
@@ -265,8 +376,18 @@ fn window_dots_avx2<const N: usize>(
         // unaligned load has no alignment requirement.
         unsafe { _mm256_loadu_si256(s.as_ptr().cast()) }
     }
-    let keep: [i16; 16] = std::array::from_fn(|q| if q < side { -1 } else { 0 });
-    let keep = load(&keep);
+    // Lanes 0 .. side all ones, the rest zero: 16 - side lanes into a row
+    // of sixteen -1s and sixteen 0s.
+    const ONES_THEN_ZEROS: [i16; 32] = {
+        let mut m = [0i16; 32];
+        let mut q = 0;
+        while q < 16 {
+            m[q] = -1;
+            q += 1;
+        }
+        m
+    };
+    let keep = load(&ONES_THEN_ZEROS[16 - side..]);
     let mut acc = [_mm256_setzero_si256(); N];
     for j in 0..side {
         let base = (y0 + j) * w;
@@ -392,6 +513,32 @@ mod tests {
                     let three = isa.window_dots(&left, &grad, w, x_left, c, y0, side);
                     assert_eq!(three, [d0, d1, d2], "{at}");
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn prefix_sums8_agree_on_every_path() {
+        // Whole blocks and a tail, and sums large enough to use f64's range.
+        for w in [0usize, 5, 8, 21] {
+            let cols: Vec<Vec<i32>> = (0..8)
+                .map(|q| {
+                    (0..w)
+                        .map(|x| (x as i32 * 7919 + q * 104_729) % 200_003 - 90_000 + q * 1_000_000)
+                        .collect()
+                })
+                .collect();
+            let cols: [&[i32]; 8] = std::array::from_fn(|q| &cols[q][..]);
+            let mut expect = vec![[0.0f64; 8]; w + 1];
+            for x in 0..w {
+                for q in 0..8 {
+                    expect[x + 1][q] = expect[x][q] + cols[q][x] as f64;
+                }
+            }
+            for isa in [Isa::Scalar, Isa::detect()] {
+                let mut got = vec![[1.0; 8]; 3];
+                isa.prefix_sums8(cols, &mut got);
+                assert_eq!(got, expect, "{isa:?}, {w} positions");
             }
         }
     }

@@ -49,23 +49,28 @@ pub fn noise_sigma(img: &GreyImage) -> f64 {
 /// spread over neighbouring pixels. `None` with under 1,000 matched pixels.
 pub fn pair_noise_dn(left: &GreyImage, right: &GreyImage, disparity: &[f32]) -> Option<f64> {
     let w = left.width;
-    if w == 0 {
-        return None;
+    if w < 2 {
+        return None; // no pixel has a right neighbour to interpolate with
     }
     // Row by row (a pixel's column from its index would be a division).
-    let mut residuals: Vec<f32> = Vec::with_capacity(disparity.len());
+    // Every pixel's residual is written and only a matched one kept (the
+    // next one overwrites the rest): no branch on the data.
+    let mut residuals = vec![0f32; disparity.len()];
+    let mut kept = 0;
     for (y, row) in disparity.chunks(w).enumerate() {
         let (left_row, right_row) = (left.row(y), right.row(y));
         for (x, &d) in row.iter().enumerate() {
             let xr = x as f32 - d;
-            if d.is_finite() && xr >= 0.0 && xr < (w - 1) as f32 {
-                let x0 = xr as usize;
-                let t = xr - x0 as f32;
-                let r = right_row[x0] as f32 * (1.0 - t) + right_row[x0 + 1] as f32 * t;
-                residuals.push(left_row[x] as f32 - r);
-            }
+            let matched = d.is_finite() & (xr >= 0.0) & (xr < (w - 1) as f32);
+            let xr = if matched { xr } else { 0.0 };
+            let x0 = xr as usize;
+            let t = xr - x0 as f32;
+            let r = right_row[x0] as f32 * (1.0 - t) + right_row[x0 + 1] as f32 * t;
+            residuals[kept] = left_row[x] as f32 - r;
+            kept += matched as usize;
         }
     }
+    residuals.truncate(kept);
     if residuals.len() < 1000 {
         return None;
     }

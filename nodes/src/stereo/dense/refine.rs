@@ -15,10 +15,11 @@
 //! products of the left window with the right gradient are summed per pixel.
 //! All sums are of integers (grey levels and twice the gradient, a
 //! difference of grey levels), so they are exact, vectorise as integer
-//! code, and do not depend on the order they are added in.
+//! code, and do not depend on the order they are added in; the prefix sums
+//! are kept in f64, where integers under 2^53 are exact too.
 
 use super::pair::GreyImage;
-use super::simd::Isa;
+use super::simd::{DotWindow, Isa};
 use rayon::prelude::*;
 
 /// Largest window side the refinement supports, px.
@@ -321,7 +322,15 @@ fn refine_row(
             // The same c as the last step needs no new products, and a
             // neighbouring one only one.
             if p.at != c {
-                let dots = |at: usize| isa.window_dots(lf, gx, w, p.x - r, at, y0, side);
+                let dots = |c: usize| {
+                    let at = DotWindow {
+                        x_left: p.x - r,
+                        c,
+                        y0,
+                        side,
+                    };
+                    isa.window_dots(lf, gx, w, at)
+                };
                 p.dots = if p.at != usize::MAX && c == p.at + 1 {
                     [p.dots[1], dots(c + 1)[0] as f64]
                 } else if c + 1 == p.at {

@@ -58,65 +58,72 @@ kernels! {
 
 }
 
-impl Isa {
-    /// Sums over a `side x side` window (rows `y0..`) of the left image
-    /// `left` (columns from `x_left`) times the gradient `grad` (columns from
-    /// `c`, `c + 1`, ... up to `c + N - 1`), images `w` px wide: the
-    /// products the sub-pixel refinement cannot take from prefix sums. Exact
-    /// in i32 for grey levels times differences of grey levels over up to
-    /// 31 x 31 px.
-    #[allow(clippy::too_many_arguments)]
-    fn window_dots_exact<const N: usize>(
-        self,
-        left: &[i16],
-        grad: &[i16],
-        w: usize,
-        x_left: usize,
-        c: usize,
-        y0: usize,
-        side: usize,
-    ) -> [i32; N] {
-        let mut dots = [0i32; N];
-        for j in 0..side {
-            let base = (y0 + j) * w;
-            let l = &left[base + x_left..base + x_left + side];
-            for (k, dot) in dots.iter_mut().enumerate() {
-                let g = &grad[base + c + k..base + c + k + side];
-                for i in 0..side {
-                    *dot += l[i] as i32 * g[i] as i32;
-                }
+/// Where the intensity refinement's window products are taken: a `side x
+/// side` window from row `y0`, the left image's columns from `x_left`, the
+/// gradient's from `c`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct DotWindow {
+    pub x_left: usize,
+    pub c: usize,
+    pub y0: usize,
+    pub side: usize,
+}
+
+/// Sums over a [`DotWindow`] of the left image `left` times the gradient
+/// `grad` (columns from `c`, `c + 1`, ... up to `c + N - 1`), images `w` px
+/// wide: the products the sub-pixel refinement cannot take from prefix
+/// sums. Exact in i32 for grey levels times differences of grey levels over
+/// up to 31 x 31 px.
+fn window_dots_exact<const N: usize>(
+    left: &[i16],
+    grad: &[i16],
+    w: usize,
+    at: DotWindow,
+) -> [i32; N] {
+    let DotWindow {
+        x_left,
+        c,
+        y0,
+        side,
+    } = at;
+    let mut dots = [0i32; N];
+    for j in 0..side {
+        let base = (y0 + j) * w;
+        let l = &left[base + x_left..base + x_left + side];
+        for (k, dot) in dots.iter_mut().enumerate() {
+            let g = &grad[base + c + k..base + c + k + side];
+            for i in 0..side {
+                *dot += l[i] as i32 * g[i] as i32;
             }
         }
-        dots
     }
+    dots
+}
 
-    /// [`Isa::window_dots_exact`]; with AVX2, a window up to 16 px wide whose
+impl Isa {
+    /// [`window_dots_exact`]; with AVX2, a window up to 16 px wide whose
     /// rows have 16 px of room in both images takes one multiply-add
     /// instruction per row and product (the compiler's own vector code for
     /// 9-wide rows was a quarter as fast).
-    #[allow(clippy::too_many_arguments)]
     #[inline]
     pub(crate) fn window_dots<const N: usize>(
         self,
         left: &[i16],
         grad: &[i16],
         w: usize,
-        x_left: usize,
-        c: usize,
-        y0: usize,
-        side: usize,
+        at: DotWindow,
     ) -> [i32; N] {
         #[cfg(target_arch = "x86_64")]
-        if self == Isa::Avx2 && side <= 16 && side > 0 {
-            let last = (y0 + side - 1) * w;
-            if last + x_left + 16 <= left.len() && last + c + N + 15 <= grad.len() {
+        if self == Isa::Avx2 && at.side <= 16 && at.side > 0 {
+            let last = (at.y0 + at.side - 1) * w;
+            if last + at.x_left + 16 <= left.len() && last + at.c + N + 15 <= grad.len() {
                 // SAFETY: `Isa::Avx2` is only made by `Isa::detect` after the
                 // CPU reported AVX2; the function reads through slices it
                 // bounds-checks itself.
-                return unsafe { window_dots_avx2(left, grad, w, x_left, c, y0, side) };
+                return unsafe { window_dots_avx2(left, grad, w, at) };
             }
         }
-        self.window_dots_exact(left, grad, w, x_left, c, y0, side)
+        window_dots_exact(left, grad, w, at)
     }
 }
 
@@ -173,34 +180,25 @@ fn prefix_sums8_avx2(cols: [&[i32]; 8], out: &mut [[f64; 8]], total: &mut [f64; 
             // SAFETY: `c` holds 8 i32 (32 bytes); unaligned load.
             unsafe { _mm256_loadu_si256(c.as_ptr().cast()) }
         });
-        // 8 x 8 transpose: t pairs quantities, u fours, v whole positions.
-        let t = |a: usize, f: fn(__m256i, __m256i) -> __m256i| f(r[a], r[a + 1]);
-        let (t0, t1) = (
-            t(0, |a, b| _mm256_unpacklo_epi32(a, b)),
-            t(0, |a, b| _mm256_unpackhi_epi32(a, b)),
-        );
-        let (t2, t3) = (
-            t(2, |a, b| _mm256_unpacklo_epi32(a, b)),
-            t(2, |a, b| _mm256_unpackhi_epi32(a, b)),
-        );
-        let (t4, t5) = (
-            t(4, |a, b| _mm256_unpacklo_epi32(a, b)),
-            t(4, |a, b| _mm256_unpackhi_epi32(a, b)),
-        );
-        let (t6, t7) = (
-            t(6, |a, b| _mm256_unpacklo_epi32(a, b)),
-            t(6, |a, b| _mm256_unpackhi_epi32(a, b)),
-        );
-        let u = [
-            _mm256_unpacklo_epi64(t0, t2),
-            _mm256_unpackhi_epi64(t0, t2),
-            _mm256_unpacklo_epi64(t1, t3),
-            _mm256_unpackhi_epi64(t1, t3),
-            _mm256_unpacklo_epi64(t4, t6),
-            _mm256_unpackhi_epi64(t4, t6),
-            _mm256_unpacklo_epi64(t5, t7),
-            _mm256_unpackhi_epi64(t5, t7),
-        ];
+        // 8 x 8 transpose: t interleaves pairs of quantities, u fours, and
+        // `position` takes a whole position's eight from two of u.
+        let t: [__m256i; 8] = std::array::from_fn(|i| {
+            let (a, b) = (r[i / 2 * 2], r[i / 2 * 2 + 1]);
+            if i % 2 == 0 {
+                _mm256_unpacklo_epi32(a, b)
+            } else {
+                _mm256_unpackhi_epi32(a, b)
+            }
+        });
+        let u: [__m256i; 8] = std::array::from_fn(|i| {
+            let pair = i / 4 * 4 + i % 4 / 2;
+            let (a, b) = (t[pair], t[pair + 2]);
+            if i % 2 == 0 {
+                _mm256_unpacklo_epi64(a, b)
+            } else {
+                _mm256_unpackhi_epi64(a, b)
+            }
+        });
         // Position k of the block: u[k % 4]'s and u[k % 4 + 4]'s low (k < 4)
         // or high 128 bits.
         let position = |k: usize| {
@@ -353,7 +351,7 @@ fn winners_u16_avx2(costs: &[u16], stride: usize, n: usize, out: &mut [(u16, usi
     }
 }
 
-/// [`Isa::window_dots_exact`] with AVX2 for `side <= 16`, where every window
+/// [`window_dots_exact`] with AVX2 for `side <= 16`, where every window
 /// row has 16 px of room in `left` from `x_left` and in `grad` from
 /// `c + N - 1`.
 #[cfg(target_arch = "x86_64")]
@@ -362,10 +360,7 @@ fn window_dots_avx2<const N: usize>(
     left: &[i16],
     grad: &[i16],
     w: usize,
-    x_left: usize,
-    c: usize,
-    y0: usize,
-    side: usize,
+    at: DotWindow,
 ) -> [i32; N] {
     use std::arch::x86_64::*;
     /// Sixteen values from the start of `s` (which must hold them).
@@ -387,14 +382,14 @@ fn window_dots_avx2<const N: usize>(
         }
         m
     };
-    let keep = load(&ONES_THEN_ZEROS[16 - side..]);
+    let keep = load(&ONES_THEN_ZEROS[16 - at.side..]);
     let mut acc = [_mm256_setzero_si256(); N];
-    for j in 0..side {
-        let base = (y0 + j) * w;
+    for j in 0..at.side {
+        let base = (at.y0 + j) * w;
         // The left row masked to the window: lanes past it multiply to 0.
-        let l = _mm256_and_si256(load(&left[base + x_left..]), keep);
+        let l = _mm256_and_si256(load(&left[base + at.x_left..]), keep);
         for (k, acc) in acc.iter_mut().enumerate() {
-            let g = load(&grad[base + c + k..]);
+            let g = load(&grad[base + at.c + k..]);
             *acc = _mm256_add_epi32(*acc, _mm256_madd_epi16(l, g));
         }
     }
@@ -503,14 +498,16 @@ mod tests {
                 let [d0, d1, d2] = by_hand(x_left, c, y0, side);
                 for isa in [Isa::Scalar, Isa::detect()] {
                     let at = format!("{isa:?} side {side} at ({x_left}, {c}, {y0})");
-                    assert_eq!(
-                        isa.window_dots(&left, &grad, w, x_left, c, y0, side),
-                        [d0],
-                        "{at}"
-                    );
-                    let two = isa.window_dots(&left, &grad, w, x_left, c, y0, side);
+                    let at_window = DotWindow {
+                        x_left,
+                        c,
+                        y0,
+                        side,
+                    };
+                    assert_eq!(isa.window_dots(&left, &grad, w, at_window), [d0], "{at}");
+                    let two = isa.window_dots(&left, &grad, w, at_window);
                     assert_eq!(two, [d0, d1], "{at}");
-                    let three = isa.window_dots(&left, &grad, w, x_left, c, y0, side);
+                    let three = isa.window_dots(&left, &grad, w, at_window);
                     assert_eq!(three, [d0, d1, d2], "{at}");
                 }
             }

@@ -520,4 +520,149 @@ mod tests {
         assert_eq!(refine_disparity(&flat, &flat, &mut d, &p), 0);
         assert!(d.iter().all(|&v| v == 3.0));
     }
+
+    /// Each pixel's steps as the module describes them, every window sum
+    /// taken directly from the images: the same arithmetic on the same
+    /// (exact) sums, so the same bits, whatever the band, the prefix table
+    /// and the reuse of window products do to get them.
+    fn refined_pixel_by_pixel(
+        left: &GreyImage,
+        right: &GreyImage,
+        disparity: &[f32],
+        params: &RefineParams,
+    ) -> Vec<f32> {
+        let (w, h) = (left.width, left.height);
+        let r = params.half_window;
+        let side = 2 * r + 1;
+        let n = (side * side) as f64;
+        let l = |x: usize, y: usize| left.data[y * w + x] as i64;
+        let rt = |x: usize, y: usize| right.data[y * w + x] as i64;
+        let g = |x: usize, y: usize| {
+            if x == 0 || x + 1 >= w {
+                0
+            } else {
+                rt(x + 1, y) - rt(x - 1, y)
+            }
+        };
+        let sum = |y: usize, f: &dyn Fn(usize, usize) -> i64| -> f64 {
+            let mut total = 0;
+            for yy in y - r..=y + r {
+                for i in 0..side {
+                    total += f(i, yy);
+                }
+            }
+            total as f64
+        };
+        let mut out = disparity.to_vec();
+        for y in r..h - r {
+            for x in r..w - r {
+                let d0 = disparity[y * w + x];
+                if d0.is_nan() {
+                    continue;
+                }
+                let sl = sum(y, &|i, yy| l(x - r + i, yy));
+                let mut d = d0 as f64;
+                let mut ok = true;
+                for _ in 0..params.iterations {
+                    let xs = x as f64 - d - r as f64;
+                    if xs < 0.0 || xs.floor() as usize + side + 1 >= w {
+                        ok = false;
+                        break;
+                    }
+                    let c = xs.floor() as usize;
+                    let t = xs - c as f64;
+                    let u = 1.0 - t;
+                    let at = |k: usize, f: &dyn Fn(usize, usize) -> i64| {
+                        sum(y, &|i, yy| f(c + k + i, yy))
+                    };
+                    let (r0, r1) = (at(0, &rt), at(1, &rt));
+                    let (g0, g1) = (at(0, &g), at(1, &g));
+                    let gg = |x: usize, yy: usize| g(x, yy) * g(x, yy);
+                    let gr = |x: usize, yy: usize| g(x, yy) * rt(x, yy);
+                    let (gg0, gg1, gr0, gr1) = (at(0, &gg), at(1, &gg), at(0, &gr), at(1, &gr));
+                    let g_g1 = at(0, &|x, yy| g(x, yy) * g(x + 1, yy));
+                    let g_r1 = at(0, &|x, yy| g(x, yy) * rt(x + 1, yy));
+                    let g1_r = at(0, &|x, yy| g(x + 1, yy) * rt(x, yy));
+                    let dot = |k: usize| sum(y, &|i, yy| l(x - r + i, yy) * g(c + k + i, yy));
+                    let s_r = sl - u * r0 - t * r1;
+                    let s_g = u * g0 + t * g1;
+                    let s_gg = u * u * gg0 + 2.0 * t * u * g_g1 + t * t * gg1;
+                    let s_gr = u * dot(0) + t * dot(1)
+                        - (u * u * gr0 + t * u * (g_r1 + g1_r) + t * t * gr1);
+                    let var_g = s_gg - s_g * s_g * (1.0 / n);
+                    let delta = -2.0 * (s_gr - s_g * s_r * (1.0 / n)) / var_g;
+                    if var_g < 4e-3 * n {
+                        ok = false;
+                        break;
+                    }
+                    d += delta;
+                    if (d - d0 as f64).abs() > params.max_change_px as f64 {
+                        ok = false;
+                        break;
+                    }
+                    if delta.abs() < 0.005 {
+                        break;
+                    }
+                }
+                if ok {
+                    out[y * w + x] = d as f32;
+                }
+            }
+        }
+        out
+    }
+
+    /// The refinement gives every pixel the bits of its steps taken one
+    /// pixel at a time, on a textured pair with disparities scattered over
+    /// the range (windows that start at column 0, that move by one column
+    /// or more between steps, or leave the image) and gaps.
+    #[test]
+    fn every_pixel_gets_the_bits_of_its_own_steps() {
+        let (w, h) = (64, 22);
+        let image = |shift: f64| GreyImage {
+            width: w,
+            height: h,
+            data: (0..w * h)
+                .map(|i| texture((i % w) as f64 + shift, (i / w) as f64).round() as u8)
+                .collect(),
+        };
+        let (left, right) = (image(0.0), image(4.4));
+        let mut seed = 5u64;
+        let disparity: Vec<f32> = (0..w * h)
+            .map(|_| {
+                seed = seed
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                match (seed >> 33) % 9 {
+                    0 => f32::NAN,
+                    k => (seed >> 40) as f32 / (1u64 << 24) as f32 * 8.0 + k as f32 * 0.1,
+                }
+            })
+            .collect();
+        for (half_window, iterations) in [(2, 1), (3, 4), (4, 2)] {
+            let params = RefineParams {
+                half_window,
+                iterations,
+                max_change_px: 1.5,
+            };
+            let expect = refined_pixel_by_pixel(&left, &right, &disparity, &params);
+            let mut got = disparity.clone();
+            let refined = refine_disparity(&left, &right, &mut got, &params);
+            let moved = got
+                .iter()
+                .zip(&disparity)
+                .filter(|(a, b)| a.to_bits() != b.to_bits());
+            assert!(
+                moved.count() > 100,
+                "window {half_window}: too few refined to test"
+            );
+            assert!(refined > 100);
+            let bits = |m: &[f32]| m.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            assert_eq!(
+                bits(&got),
+                bits(&expect),
+                "window {half_window}, {iterations} steps"
+            );
+        }
+    }
 }

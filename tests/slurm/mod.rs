@@ -221,8 +221,7 @@ fn comparison(dir: &Path) -> BTreeMap<String, (String, String)> {
         .collect()
 }
 
-#[test]
-fn a_sweep_sharded_over_a_real_slurm_array_matches_one_process() {
+pub fn a_sweep_sharded_over_a_real_slurm_array_matches_one_process() {
     let cluster = match Cluster::start() {
         Ok(c) => c,
         Err(why) => {

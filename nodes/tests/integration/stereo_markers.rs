@@ -4,23 +4,15 @@
 
 use fusegraph_nodes::calib::{rectify, remap};
 use fusegraph_nodes::camera::isometry_from_matrix;
-use fusegraph_nodes::phantom::{GroundTruth, PhantomConfig, PhantomSize, generate};
+use fusegraph_nodes::phantom::{GroundTruth, PhantomSize};
 use fusegraph_nodes::stereo::{BlobParams, PairParams, find_blobs, stereo_markers};
 use nalgebra::{Point3, Vector3};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-fn phantom() -> (PathBuf, GroundTruth, bool) {
-    let size = std::env::var("FUSEGRAPH_TEST_PHANTOM_SIZE").unwrap_or_else(|_| "small".into());
-    let size = PhantomSize::parse(&size).expect("FUSEGRAPH_TEST_PHANTOM_SIZE is small or full");
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
-        .join(format!("stereo-markers-phantom-{}", size.name()));
-    let _ = std::fs::remove_dir_all(&dir);
-    let config = PhantomConfig {
-        size,
-        ..PhantomConfig::default()
-    };
-    let g = generate(&config, &dir).unwrap();
-    (dir, g.truth, size == PhantomSize::Full)
+/// The phantom the binary's tests share, and whether it is the full one.
+fn phantom() -> (&'static Path, &'static GroundTruth, bool) {
+    let (dir, truth) = super::shared_phantom();
+    (dir, truth, super::phantom_size() == PhantomSize::Full)
 }
 
 fn rgb(path: &Path) -> (Vec<u8>, usize, usize) {

@@ -14,24 +14,7 @@ use nalgebra::{Isometry3, Point2, Point3, Vector3};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-/// One phantom per test binary, regenerated on every run: `small` unless
-/// FUSEGRAPH_TEST_PHANTOM_SIZE=full asks for the accuracy-grade one.
-fn phantom() -> &'static (PathBuf, GroundTruth) {
-    static PHANTOM: OnceLock<(PathBuf, GroundTruth)> = OnceLock::new();
-    PHANTOM.get_or_init(|| {
-        let size = std::env::var("FUSEGRAPH_TEST_PHANTOM_SIZE").unwrap_or_else(|_| "small".into());
-        let size = PhantomSize::parse(&size).expect("FUSEGRAPH_TEST_PHANTOM_SIZE is small or full");
-        let dir =
-            Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("phantom-tests-{}", size.name()));
-        let _ = std::fs::remove_dir_all(&dir);
-        let config = PhantomConfig {
-            size,
-            ..PhantomConfig::default()
-        };
-        let g = generate(&config, &dir).unwrap();
-        (dir, g.truth)
-    })
-}
+use super::shared_phantom as phantom;
 
 /// The chessboard's inner corners in the board frame (mm), row by row.
 fn board_corners(truth: &GroundTruth) -> Vec<Point3<f64>> {

@@ -3,9 +3,7 @@
 //! there, and a screenshot is not blank. Skipped, with a message, where no
 //! chromium is installed (`.ci/run` installs it where the machine lets it).
 
-mod common;
-
-use common::chromium;
+use super::common::chromium;
 use fusegraph_engine::figure::{Figure, FigureData};
 use fusegraph_engine::report::{NodeReport, NodeStatus, RunReport};
 use fusegraph_engine::report_html::Reference;

@@ -1,11 +1,25 @@
 //! The `fusegraph` command line, end to end: run, cache reuse, overrides,
-//! validation exit codes, failures, concurrent processes, listing and dot.
+//! validation exit codes, failures, concurrent processes, listing and dot;
+//! the shipped graphs' acceptance figures. The modules hold the rest of the
+//! package's end-to-end tests (bad inputs, real data, plugins, sweeps, the
+//! report in a browser, the op declarations, Slurm): run one with e.g.
+//! `cargo test --test cli plugins::`.
 
 mod common;
 // The Slurm test lives in this binary so that its waits on the cluster's
 // daemons (half a minute, little CPU) overlap these tests' jobs; a binary
 // of its own ran alone, as `cargo test` runs one binary at a time.
 mod slurm;
+// The other end-to-end tests, for the same reason: as binaries of their own
+// they ran one after another, a core idle while each waited on its one or
+// two jobs (and each linked the crate and its dependencies again).
+mod bad_input_corpus;
+mod bad_inputs;
+mod op_declarations;
+mod plugins;
+mod real_inputs;
+mod report;
+mod sweeps;
 
 use common::{fusegraph, stderr};
 use std::path::{Path, PathBuf};

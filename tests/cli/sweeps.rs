@@ -5,9 +5,7 @@
 //! processes, and a failed variant is reported in its row while the others
 //! finish. Bad sweeps are refused before anything runs.
 
-mod common;
-
-use common::{chromium, fusegraph, stderr};
+use super::common::{chromium, fusegraph, stderr};
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::Command;

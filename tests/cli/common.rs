@@ -4,7 +4,6 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 /// Runs the `fusegraph` binary with `args` in `cwd`.
-#[allow(dead_code)] // not every test binary uses it
 pub fn fusegraph(args: &[&str], cwd: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_fusegraph"))
         .args(args)
@@ -14,7 +13,6 @@ pub fn fusegraph(args: &[&str], cwd: &Path) -> Output {
 }
 
 /// What a run printed on stderr.
-#[allow(dead_code)] // not every test binary uses it
 pub fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
@@ -24,7 +22,6 @@ pub fn stderr(o: &Output) -> String {
 /// under a cluster's memory limit), killing it if it runs longer than `time`:
 /// a hang fails the test instead of stalling the suite.
 #[cfg(target_os = "linux")]
-#[allow(dead_code)] // not every test binary uses it
 pub fn limited(args: &[&str], cwd: &Path, memory_bytes: u64, time: std::time::Duration) -> Output {
     use std::os::unix::process::CommandExt;
     use std::process::Stdio;
@@ -80,7 +77,6 @@ pub fn limited(args: &[&str], cwd: &Path, memory_bytes: u64, time: std::time::Du
 
 /// The browser's command, if one is installed (Debian's chromium; tests that
 /// need it skip with a message otherwise).
-#[allow(dead_code)] // not every test binary uses it
 pub fn chromium() -> Option<&'static str> {
     ["chromium", "chromium-browser", "google-chrome"]
         .into_iter()

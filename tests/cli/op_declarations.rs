@@ -6,7 +6,7 @@
 //! keys may come in any order; lists (ports, parameters, choices) keep theirs.
 //!
 //! After a deliberate change (a new parameter, a version bump), rewrite the
-//! record with `FUSEGRAPH_BLESS=1 cargo test --test op_declarations` and
+//! record with `FUSEGRAPH_BLESS=1 cargo test --test cli op_declarations` and
 //! review its diff.
 
 use serde_json::Value;

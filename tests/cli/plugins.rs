@@ -5,9 +5,7 @@
 //! fail or return malformed outputs), each refused with a clear error while
 //! the host survives and a graph's other branches finish.
 
-mod common;
-
-use common::stderr;
+use super::common::stderr;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::OnceLock;

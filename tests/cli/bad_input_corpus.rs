@@ -5,9 +5,7 @@
 //! (exit 1 or 2) naming the file, node or key, within bounded time and
 //! memory; never a panic (exit 101), an abort or a hang.
 
-mod common;
-
-use common::{fusegraph, limited, stderr};
+use super::common::{fusegraph, limited, stderr};
 use std::path::Path;
 
 /// One bad input: what to run and what the user must be told.

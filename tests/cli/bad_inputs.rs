@@ -3,9 +3,7 @@
 //! cache. Each gets a clear error (exit 1 or 2) or the right result, never a
 //! panic (exit 101) or a hang.
 
-mod common;
-
-use common::{fusegraph, stderr};
+use super::common::{fusegraph, stderr};
 use std::io::Read;
 use std::path::Path;
 use std::process::{Command, Stdio};
@@ -187,7 +185,7 @@ fn a_decompression_bomb_fails_clearly_under_a_memory_limit() {
         "[node.img]\nop = \"io.read_image\"\npath = \"bomb.png\"\n",
     )
     .unwrap();
-    let o = common::limited(
+    let o = super::common::limited(
         &["run", "g.toml", "--no-cache"],
         t.path(),
         1 << 30,

@@ -3,9 +3,7 @@
 //! pairs, an absurd calibration, malformed list parameters; warnings in
 //! report.json and the CLI summary, on a cached re-run too.
 
-mod common;
-
-use common::{fusegraph, stderr};
+use super::common::{fusegraph, stderr};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 

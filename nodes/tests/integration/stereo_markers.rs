@@ -53,7 +53,7 @@ fn phantom_markers_in_the_original_and_rectified_images() {
             let (img, w, h) = rgb(&dir.join(file));
             let (blobs, _) = find_blobs(&img, w, h, &params).unwrap();
             for &id in visible.iter().filter(|&&id| facing(id, &pose)) {
-                let p = face_outline_centroid(&truth, id, camera, &pose);
+                let p = face_outline_centroid(truth, id, camera, &pose);
                 let err = blobs
                     .iter()
                     .map(|b| ((b.x_px - p.0).powi(2) + (b.y_px - p.1).powi(2)).sqrt())

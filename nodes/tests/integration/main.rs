@@ -1,9 +1,9 @@
 //! The nodes crate's integration tests, one module per subject, in one
 //! binary: each test binary links the whole crate and compiles its own copies
 //! of what it uses from the DICOM, image and linear-algebra crates, and
-//! `cargo test` runs binaries one after another, so eight small ones cost a
-//! clean CI run about as much again to build and left a core idle while each
-//! ran its one or two tests. Run one subject with
+//! `cargo test` runs binaries one after another: as eight binaries they took
+//! longer to build, and a core could idle while one ran its one or two
+//! tests. Run one subject with
 //! `cargo test -p fusegraph-nodes --test integration phantom::`.
 //!
 //! `fuzz.rs` stays a binary of its own: it holds its process's peak memory

@@ -15,6 +15,7 @@ mod slurm;
 // build, 43 s as modules here), and `cargo test` ran them one after another.
 mod bad_input_corpus;
 mod bad_inputs;
+mod figure_records;
 mod op_declarations;
 mod plugins;
 mod real_inputs;
@@ -736,7 +737,10 @@ fn every_shipped_graph_runs_with_no_failed_node() {
         let args: Vec<&str> = args.iter().map(String::as_str).collect();
         let o = fusegraph(&args, t.path());
         assert!(o.status.success(), "{}: {}", graph.display(), stderr(&o));
-        assert_no_node_failed(graph, &report(&graph_out));
+        let report = report(&graph_out);
+        assert_no_node_failed(graph, &report);
+        let name = graph.file_stem().unwrap().to_str().unwrap();
+        figure_records::assert_figures_as_recorded(name, &report);
     }
 }
 
@@ -956,7 +960,8 @@ fn write_three_view_fusion(dir: &Path) {
 /// small phantom with three of its six views (every op the full one runs;
 /// the other views only repeat them, and cost the suite a minute on 2
 /// cores), cold twice with caches of its own; each node's outputs (files
-/// by content hash), metrics (but timings) and notes compared.
+/// by content hash), metrics (but timings) and notes compared, and the
+/// figures the ones recorded (`figure_records`).
 #[test]
 fn main_job_gives_the_same_results_on_one_thread_and_on_several() {
     use fusegraph_engine::Value;
@@ -1031,6 +1036,7 @@ fn main_job_gives_the_same_results_on_one_thread_and_on_several() {
         compared += 1;
     }
     assert!(compared > 80, "{compared} nodes compared");
+    figure_records::assert_figures_as_recorded("fusion_small_three_views", &serial);
 }
 
 #[test]

@@ -8,7 +8,9 @@ use fusegraph_engine::value::{PathValue, Rectification, StereoRig};
 /// A calibrated rig (and rectification) against the phantom's true cameras
 #[derive(Op)]
 // 2: signed errors (fx .. cy in px, the baseline, the rotation about each axis).
-#[op(name = "eval.calibration", version = 2)]
+// 3: the truth file's numbers read exactly as written (they were read to within
+// an ulp or so).
+#[op(name = "eval.calibration", version = 3)]
 pub struct EvalCalibration;
 
 #[derive(Inputs)]

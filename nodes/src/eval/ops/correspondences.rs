@@ -8,7 +8,9 @@ use fusegraph_engine::value::{Markers, PathValue};
 
 /// Whether matched marker pairs (e.g. camera -> MRI) are the same true markers
 #[derive(Op)]
-#[op(name = "eval.correspondences", version = 1)]
+// 2: the truth file's numbers read exactly as written (they were read to within
+// an ulp or so).
+#[op(name = "eval.correspondences", version = 2)]
 pub struct EvalCorrespondences {
     /// The true centres the source markers are measured at (faces for camera markers)
     #[param(default = SourceReference::WorldFace)]

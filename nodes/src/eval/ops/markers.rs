@@ -7,7 +7,9 @@ use fusegraph_engine::value::{Markers, PathValue};
 
 /// Found marker centres against the phantom's true ones (no assumed order)
 #[derive(Op)]
-#[op(name = "eval.markers", version = 5)]
+// 6: the truth file's numbers read exactly as written (they were read to within
+// an ulp or so).
+#[op(name = "eval.markers", version = 6)]
 pub struct EvalMarkers {
     /// Which true centres: gel cores in MRI LPS (markers in mri_lps), or gel cores / coloured faces (markers in world, or in camera_left: then only those visible in both images of `view`), or lesion centres in MRI LPS (lesions found in the scan)
     #[param(default = Reference::MriGel)]

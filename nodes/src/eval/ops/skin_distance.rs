@@ -8,7 +8,9 @@ use fusegraph_engine::value::{Mesh, PathValue};
 
 /// Distances from a surface's vertices to the phantom's true skin
 #[derive(Op)]
-#[op(name = "eval.skin_distance", version = 4)]
+// 5: the truth file's numbers read exactly as written (they were read to within
+// an ulp or so).
+#[op(name = "eval.skin_distance", version = 5)]
 pub struct EvalSkinDistance {
     /// Skip vertices this close to a marker
     #[param(default = 2.0, unit = "mm", min = 0.0)]

@@ -8,7 +8,9 @@ use fusegraph_engine::value::{PathValue, PointCloud};
 
 /// Distances from a point cloud to the phantom's true skin (mean, 95th percentile, max)
 #[derive(Op)]
-#[op(name = "eval.surface", version = 3)]
+// 4: the truth file's numbers read exactly as written (they were read to within
+// an ulp or so).
+#[op(name = "eval.surface", version = 4)]
 pub struct EvalSurface {
     /// Which view's left camera, for a cloud in camera_left
     #[param(default = 0, min = 0)]

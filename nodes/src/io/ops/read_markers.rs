@@ -7,7 +7,9 @@ use fusegraph_engine::value::Markers;
 
 /// Read marked points (e.g. targets in MRI) from a 3D Slicer .mrk.json or a CSV with x, y, z columns (mm)
 #[derive(Op)]
-#[op(name = "io.read_markers", version = 2)]
+// 3: the markups file's numbers read exactly as written (they were read to within
+// an ulp or so).
+#[op(name = "io.read_markers", version = 3)]
 pub struct ReadMarkers {
     /// Which file: `file` in the `dir` input, or `path`.
     #[param(flatten)]

@@ -8,7 +8,9 @@ use fusegraph_engine::value::{Markers, PointCloud};
 /// Simulated stereo reconstruction of one phantom view, from the truth: noisy
 /// visible surface and markers
 #[derive(Debug, Clone, PartialEq, Op)]
-#[op(name = "phantom.camera_surface", version = 1)]
+// 2: the truth file's numbers read exactly as written (they were read to within
+// an ulp or so).
+#[op(name = "phantom.camera_surface", version = 2)]
 pub struct CameraSurface {
     /// The view, the noise and the marker errors.
     #[param(flatten)]

@@ -8,7 +8,9 @@ use fusegraph_engine::value::Markers;
 /// The phantom's lesion centres in MRI space: the targets a radiologist would
 /// mark on the scan
 #[derive(Debug, Clone, PartialEq, Op)]
-#[op(name = "phantom.lesions", version = 1)]
+// 2: the truth file's numbers read exactly as written (they were read to within
+// an ulp or so).
+#[op(name = "phantom.lesions", version = 2)]
 pub struct Lesions;
 
 /// The output of `phantom.lesions`.

@@ -10,7 +10,9 @@ use rand::{Rng, SeedableRng};
 /// A phantom view's left camera pose, as a robot arm would report it (with
 /// noise)
 #[derive(Debug, Clone, PartialEq, Op)]
-#[op(name = "phantom.rig_pose", version = 1)]
+// 2: the truth file's numbers read exactly as written (they were read to within
+// an ulp or so).
+#[op(name = "phantom.rig_pose", version = 2)]
 pub struct RigPose {
     /// Which view pair
     #[param(default = 0, min = 0)]

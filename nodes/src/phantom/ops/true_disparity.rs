@@ -11,7 +11,9 @@ use fusegraph_engine::value::{Disparity, Image, PathValue, Pixels, Rectification
 /// True disparity of a view pair as rectified with an estimated rig
 /// (calibration error included)
 #[derive(Debug, Clone, PartialEq, Op)]
-#[op(name = "phantom.true_disparity", version = 1)]
+// 2: the truth file's numbers read exactly as written (they were read to within
+// an ulp or so).
+#[op(name = "phantom.true_disparity", version = 2)]
 pub struct TrueDisparity {
     /// Which view pair
     #[param(default = 0, min = 0)]

@@ -10,7 +10,9 @@ use fusegraph_engine::value::{Markers, PathValue, PointCloud, Transform};
 
 /// Registration quality: RMSE over the overlap, and with the truth, TRE at the lesions; a 3D view of the fused clouds for the report
 #[derive(Op)]
-#[op(name = "register.evaluate", version = 2)]
+// 3: the truth file's numbers read exactly as written (they were read to within
+// an ulp or so).
+#[op(name = "register.evaluate", version = 3)]
 pub struct Evaluate {
     /// Source points farther than this from the target are not overlap
     #[param(default = 10.0, unit = "mm", min = 0.0)]

@@ -19,7 +19,9 @@ use nalgebra::{Matrix3, Point3};
 // 5: the targets given or detected in the scan.
 // 6: targets moved by a deformation.
 // 7: each target's calibration part (calibration_covariance).
-#[op(name = "register.map_targets", version = 7)]
+// 8: the truth file's numbers read exactly as written (they were read to within
+// an ulp or so).
+#[op(name = "register.map_targets", version = 8)]
 pub struct MapTargets {
     /// Phantom view whose left camera is camera_left
     #[param(default = 0, min = 0)]

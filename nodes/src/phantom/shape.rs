@@ -139,7 +139,84 @@ pub struct PhantomShape {
     pub lesion_signal: f32,
     /// The ellipsoid's rotation, computed once (ray casting asks per sample).
     #[serde(skip)]
-    rotation_cache: OnceLock<Rotation3<f64>>,
+    rotation_cache: Derived<Rotation3<f64>>,
+    /// The sphere holding the dome and the markers, computed once.
+    #[serde(skip)]
+    bound_cache: Derived<BodyBound>,
+}
+
+/// A value derived from the rest of its struct and computed on first use
+/// (the struct is not changed after it is built): no part of the struct's
+/// equality or of its serialised form.
+#[derive(Debug, Clone)]
+struct Derived<T>(OnceLock<T>);
+
+impl<T> Default for Derived<T> {
+    fn default() -> Self {
+        Derived(OnceLock::new())
+    }
+}
+
+impl<T> PartialEq for Derived<T> {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+
+/// Margin of [`BodyBound`]'s radius beyond what it holds, mm: far above the
+/// rounding of a hit's position (about 1e-13 mm here), so a ray that misses
+/// the sphere surely meets nothing inside it.
+const BOUND_MARGIN_MM: f64 = 1e-3;
+
+/// A sphere (phantom frame, mm) holding the dome (the ellipsoid's part
+/// above z = 0) and every marker's bounding sphere, [`BOUND_MARGIN_MM`]
+/// wider: most of a view's rays, and the shadow rays from the table, pass
+/// it by, and skip the ellipsoid's and the twelve markers' tests.
+#[derive(Debug, Clone, Copy)]
+struct BodyBound {
+    centre: Point3<f64>,
+    radius_squared: f64,
+}
+
+impl BodyBound {
+    /// Around the box holding the dome: the rotated ellipsoid's box (its
+    /// half extent along axis i is the length of row i of R diag(a)) cut to
+    /// z >= 0; widened to each marker's bounding sphere.
+    fn of(shape: &PhantomShape) -> Self {
+        let r = shape.rotation();
+        let (axes, c) = (shape.semi_axes_mm, shape.ellipsoid_center_mm);
+        let half: [f64; 3] = std::array::from_fn(|i| {
+            (0..3)
+                .map(|j| (r[(i, j)] * axes[j]).powi(2))
+                .sum::<f64>()
+                .sqrt()
+        });
+        let lo = Vector3::new(c[0] - half[0], c[1] - half[1], (c[2] - half[2]).max(0.0));
+        let hi = Vector3::new(c[0] + half[0], c[1] + half[1], (c[2] + half[2]).max(0.0));
+        let centre = Point3::from(0.5 * (lo + hi));
+        let radius = shape
+            .markers
+            .iter()
+            .map(|m| {
+                (Point3::from(m.skin_point_mm) - centre).norm() + m.bounding_radius_squared().sqrt()
+            })
+            .fold(0.5 * (hi - lo).norm(), f64::max)
+            + BOUND_MARGIN_MM;
+        BodyBound {
+            centre,
+            radius_squared: radius * radius,
+        }
+    }
+
+    /// Whether the ray from `origin` along unit `dir` surely meets nothing
+    /// inside the sphere at a distance t >= 0: its line passes the sphere
+    /// by, or the sphere lies wholly behind the origin.
+    fn passed_by(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> bool {
+        let w = origin - self.centre;
+        let b_half = w.dot(dir);
+        let c = w.norm_squared() - self.radius_squared;
+        c > 0.0 && (b_half > 0.0 || b_half * b_half < c)
+    }
 }
 
 /// The geometry parameters a phantom is built from, in the phantom's own
@@ -293,7 +370,8 @@ impl PhantomShape {
             markers: Vec::new(),
             lesions: Vec::new(),
             lesion_signal: p.lesion_signal as f32,
-            rotation_cache: OnceLock::new(),
+            rotation_cache: Derived::default(),
+            bound_cache: Derived::default(),
         };
         shape.markers = shape.layout_markers(p, rng)?;
         for (i, c) in p.lesions_mm.iter().enumerate() {
@@ -315,9 +393,14 @@ impl PhantomShape {
 
     /// Rotation of the ellipsoid's axes in the phantom frame.
     pub fn rotation(&self) -> Rotation3<f64> {
-        *self.rotation_cache.get_or_init(|| {
+        *self.rotation_cache.0.get_or_init(|| {
             Rotation3::from_axis_angle(&Vector3::x_axis(), self.tilt_deg.to_radians())
         })
+    }
+
+    /// The sphere holding the dome and the markers.
+    fn bound(&self) -> &BodyBound {
+        self.bound_cache.0.get_or_init(|| BodyBound::of(self))
     }
 
     /// `p` in the ellipsoid's unit-sphere frame (the dome's surface at
@@ -447,8 +530,26 @@ impl PhantomShape {
     }
 
     /// [`PhantomShape::intersect`] given what depends on the origin alone:
-    /// its [`PhantomShape::unit_origin`] and each marker's offset.
+    /// its [`PhantomShape::unit_origin`] and each marker's offset. A ray
+    /// that passes the [`BodyBound`] by meets nothing, without the tests
+    /// ([`PhantomShape::intersect_each`]'s answer).
     fn intersect_from(
+        &self,
+        origin: &Point3<f64>,
+        unit_origin: &(Vector3<f64>, f64),
+        dir: &Vector3<f64>,
+        t_min: f64,
+        offset: impl Fn(usize) -> MarkerOffset,
+    ) -> Option<Hit> {
+        if t_min >= 0.0 && self.bound().passed_by(origin, dir) {
+            return None;
+        }
+        self.intersect_each(origin, unit_origin, dir, t_min, offset)
+    }
+
+    /// [`PhantomShape::intersect_from`] by testing the skin and each
+    /// marker.
+    fn intersect_each(
         &self,
         origin: &Point3<f64>,
         unit_origin: &(Vector3<f64>, f64),
@@ -726,6 +827,122 @@ mod tests {
             &mut rand_chacha::ChaCha8Rng::seed_from_u64(1),
         )
         .unwrap()
+    }
+
+    /// Points of the dome (the ellipsoid above z = 0) and of every marker's
+    /// cylinder, spread over them.
+    fn body_points(s: &PhantomShape, rng: &mut impl Rng) -> Vec<Point3<f64>> {
+        let (axes, c) = (
+            Vector3::from(s.semi_axes_mm),
+            Point3::from(s.ellipsoid_center_mm),
+        );
+        let mut points = Vec::new();
+        while points.len() < 20_000 {
+            let u = Vector3::new(
+                rng.random_range(-1.0..1.0f64),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            );
+            if u.norm() > 1.0 || u.norm() < 1e-3 {
+                continue;
+            }
+            let p = c + s.rotation() * u.normalize().component_mul(&axes);
+            if p.z >= 0.0 {
+                points.push(p);
+            }
+        }
+        for m in &s.markers {
+            let (base, n) = m.axis();
+            let a = n.cross(&Vector3::x()).normalize();
+            let b = n.cross(&a);
+            for k in 0..64 {
+                let angle = k as f64 / 64.0 * std::f64::consts::TAU;
+                let rim = (a * angle.cos() + b * angle.sin()) * m.radius_mm;
+                points.push(base + n * m.height_mm + rim);
+                points.push(base - n * m.below_skin_mm + rim);
+            }
+        }
+        points
+    }
+
+    #[test]
+    fn the_body_bound_holds_the_dome_and_the_markers_with_its_margin() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
+        for params in [
+            ShapeParams::default(),
+            ShapeParams {
+                droop_deg: -20.0,
+                height_mm: 100.0,
+                width_mm: 60.0,
+                ..ShapeParams::default()
+            },
+        ] {
+            let s = PhantomShape::build(&params, &mut rng).unwrap();
+            let bound = s.bound();
+            let radius = bound.radius_squared.sqrt();
+            let farthest = body_points(&s, &mut rng)
+                .iter()
+                .map(|p| (p - bound.centre).norm())
+                .fold(0.0, f64::max);
+            // Inside by far more than a hit's rounding (1e-13 mm).
+            assert!(farthest < radius - 1e-4, "{farthest} {radius}");
+            // Not loose: around the dome's box, whose corners it does not reach.
+            assert!(farthest > 0.7 * radius, "{farthest} {radius}");
+        }
+    }
+
+    #[test]
+    fn rays_the_body_bound_skips_meet_nothing_the_tests_would_meet() {
+        let s = phantom();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let targets = body_points(&s, &mut rng);
+        let bound = *s.bound();
+        let radius = bound.radius_squared.sqrt();
+        let (mut skipped, mut met, n) = (0, 0, 40_000);
+        for k in 0..n {
+            // Cameras around and above, and points on the table (shadow rays).
+            let origin = if k % 2 == 0 {
+                Point3::new(
+                    rng.random_range(-600.0..600.0),
+                    rng.random_range(-600.0..600.0),
+                    rng.random_range(50.0..600.0),
+                )
+            } else {
+                Point3::new(
+                    rng.random_range(-300.0..300.0),
+                    rng.random_range(-300.0..300.0),
+                    0.0,
+                )
+            };
+            let dir = match k % 4 {
+                // At the body: grazing rays included (its points).
+                0 | 1 => (targets[rng.random_range(0..targets.len())] - origin).normalize(),
+                // Past the bound's edge, just outside or inside it.
+                2 => {
+                    let to = bound.centre - origin;
+                    let side = to.cross(&Vector3::z()).normalize();
+                    let off = radius * (1.0 + rng.random_range(-1e-6..1e-6));
+                    (to + side * off).normalize()
+                }
+                _ => Vector3::new(
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                )
+                .normalize(),
+            };
+            let each = s.intersect_each(&origin, &s.unit_origin(&origin), &dir, 1e-6, |i| {
+                MarkerOffset::new(&s.markers[i], &origin)
+            });
+            assert_eq!(s.intersect(&origin, &dir, 1e-6), each, "{origin} {dir}");
+            assert_eq!(s.rays_from(&origin).intersect(&dir, 1e-6), each);
+            skipped += usize::from(bound.passed_by(&origin, &dir));
+            met += usize::from(each.is_some());
+        }
+        assert!(
+            skipped > n / 8 && met > n / 4,
+            "{skipped} skipped, {met} met of {n}"
+        );
     }
 
     #[test]

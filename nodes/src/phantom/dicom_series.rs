@@ -11,6 +11,7 @@ use dicom_dictionary_std::{tags, uids};
 use dicom_object::{FileMetaTableBuilder, InMemDicomObject};
 use fusegraph_engine::value::Grid;
 use rand::SeedableRng;
+use rayon::prelude::*;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 use std::path::{Path, PathBuf};
@@ -83,8 +84,9 @@ pub fn write_series(
     let mut order: Vec<usize> = (0..nz).collect();
     order.shuffle(&mut ChaCha8Rng::seed_from_u64(seed ^ 0x5EED_D1C0));
     std::fs::create_dir_all(dir)?;
-    let mut files = Vec::with_capacity(nz);
-    for (name_index, &k) in order.iter().enumerate() {
+    // Slices are encoded and written in parallel: each file depends on its
+    // slice alone, so the files are the same bytes.
+    let write_slice = |(name_index, &k): (usize, &usize)| -> std::io::Result<PathBuf> {
         let position = grid.to_patient([0.0, 0.0, k as f64]);
         let pixels: Vec<u16> = signal[k * nx * ny..(k + 1) * nx * ny]
             .iter()
@@ -185,9 +187,9 @@ pub fn write_series(
             .map_err(std::io::Error::other)?;
         let path = dir.join(format!("IM{:04}.dcm", name_index + 1));
         file.write_to_file(&path).map_err(std::io::Error::other)?;
-        files.push(path);
-    }
-    Ok(files)
+        Ok(path)
+    };
+    order.par_iter().enumerate().map(write_slice).collect()
 }
 
 #[cfg(test)]

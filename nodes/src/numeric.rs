@@ -40,6 +40,20 @@ pub fn round_to_u8(x: f64) -> u8 {
     t + u8::from(x - t as f64 >= 0.5)
 }
 
+/// `x.round().clamp(0.0, 65535.0) as u16` for every `x` (NaN gives 0), as
+/// [`round_to_u8`] does for 8 bits: a stored 16-bit sample.
+#[inline]
+pub fn round_to_u16(x: f64) -> u16 {
+    if x.is_nan() || x < 0.0 {
+        return 0;
+    }
+    if x >= 65535.0 {
+        return u16::MAX;
+    }
+    let t = x as u16;
+    t + u16::from(x - t as f64 >= 0.5)
+}
+
 /// |q| below this, [`floor_small`] is exact.
 pub const EXACT_FLOOR_LIMIT: f64 = 2_251_799_813_685_248.0; // 2^51
 
@@ -194,6 +208,35 @@ mod tests {
         values.extend((0..20_000).map(|_| rng.random_range(-2.0..258.0)));
         for x in values {
             assert_eq!(round_to_u8(x), x.round().clamp(0.0, 255.0) as u8, "{x}");
+        }
+    }
+
+    #[test]
+    fn rounding_to_a_16_bit_sample_is_the_library_round_clamped() {
+        let mut values = vec![
+            0.0,
+            -0.0,
+            0.5,
+            0.49999999999999994,
+            2.5,
+            65534.5,
+            65534.49999999999,
+            65535.0,
+            65535.4,
+            65535.5,
+            65536.0,
+            -0.5,
+            -0.49999999999999994,
+            1e300,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+        ];
+        values.extend((0..=131_072).map(|k| k as f64 * 0.5));
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        values.extend((0..20_000).map(|_| rng.random_range(-2.0..65540.0)));
+        for x in values {
+            assert_eq!(round_to_u16(x), x.round().clamp(0.0, 65535.0) as u16, "{x}");
         }
     }
 

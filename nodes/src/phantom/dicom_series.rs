@@ -5,15 +5,16 @@
 //! shuffled, and InstanceNumber runs against the slice normal, so a reader must
 //! sort slices by position.
 
+use crate::numeric::round_to_u16;
 use dicom_core::value::{C, PrimitiveValue};
 use dicom_core::{DataElement, VR};
 use dicom_dictionary_std::{tags, uids};
 use dicom_object::{FileMetaTableBuilder, InMemDicomObject};
 use fusegraph_engine::value::Grid;
 use rand::SeedableRng;
-use rayon::prelude::*;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
 /// Stored value = signal / RESCALE_SLOPE (so signal 1.0, the gel, is 4000).
@@ -90,11 +91,7 @@ pub fn write_series(
         let position = grid.to_patient([0.0, 0.0, k as f64]);
         let pixels: Vec<u16> = signal[k * nx * ny..(k + 1) * nx * ny]
             .iter()
-            .map(|&s| {
-                (s as f64 / RESCALE_SLOPE)
-                    .round()
-                    .clamp(0.0, u16::MAX as f64) as u16
-            })
+            .map(|&s| round_to_u16(s as f64 / RESCALE_SLOPE))
             .collect();
         let instance = nz - k;
         let sop_uid = format!("{}.{instance}", ids.series_uid);

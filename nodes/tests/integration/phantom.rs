@@ -568,8 +568,8 @@ fn moved_targets_are_the_field_applied_to_the_scanned_ones() {
         let shift = (moved - scanned).norm();
         assert!(shift <= 10.0 + 1e-6, "marker {}: {shift}", m.id);
     }
-    // The truth reads back with its field (JSON keeps 17 digits; the parser
-    // may round the last bit).
+    // The truth reads back with its field, to the bit (JSON keeps 17
+    // digits, and serde_json's float_roundtrip reads them exactly).
     let back = GroundTruth::load(&sagged_phantom().0.join("ground_truth.json")).unwrap();
     // The conditions in force are recorded with it, by parameter name.
     let conditions = back.conditions.expect("the conditions recorded");
@@ -580,7 +580,7 @@ fn moved_targets_are_the_field_applied_to_the_scanned_ones() {
     let back = back.motion.expect("the field read back");
     assert_eq!((back.kind, back.peak_mm), (field.kind, field.peak_mm));
     let probe = Point3::new(10.0, -20.0, 30.0);
-    assert!((back.moved(&probe) - field.moved(&probe)).norm() < 1e-12);
+    assert_eq!(back.moved(&probe), field.moved(&probe));
 }
 
 #[test]

@@ -294,7 +294,8 @@ fn render_with(
             TextureSamples::Grid(m) => offsets_of(m.clamp(1, n)),
             TextureSamples::Quincunx => Vec::new(),
         };
-        let centre = image.clone();
+        // Read in place: the image changes only after the pixels are classified.
+        let centre = &image;
         let neighbours = |x: usize, y: usize| {
             (y.saturating_sub(1)..(y + 2).min(h)).flat_map(move |yy| {
                 (x.saturating_sub(1)..(x + 2).min(w)).map(move |xx| xx + yy * w)
@@ -327,8 +328,14 @@ fn render_with(
             let mut largest = vec![0.0f32; 3 * w];
             for yy in y.saturating_sub(1)..(y + 2).min(h) {
                 let other = centre[yy * w..(yy + 1) * w].as_flattened();
-                // Pixel x against x - 1, x and x + 1 of that row.
-                for (mine, theirs) in [(3, 0), (0, 0), (0, 3)] {
+                // Pixel x against x - 1, x and x + 1 of that row (not
+                // against itself).
+                let shifts: &[(usize, usize)] = if yy == y {
+                    &[(3, 0), (0, 3)]
+                } else {
+                    &[(3, 0), (0, 0), (0, 3)]
+                };
+                for &(mine, theirs) in shifts {
                     let n = 3 * w - mine.max(theirs);
                     isa.raise_to_differences(
                         &mut largest[mine..mine + n],

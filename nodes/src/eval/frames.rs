@@ -73,6 +73,7 @@ pub(crate) fn test_truth() -> GroundTruth {
     GroundTruth {
         schema: SCHEMA.into(),
         seed: 1,
+        sensor_seed: None,
         size: "small".into(),
         phantom_to_mri: isometry_to_matrix(&to_mri),
         phantom_to_world: isometry_to_matrix(&to_world),

@@ -62,12 +62,15 @@ pub struct PhantomConfig {
     pub views: usize,
     /// The camera session's conditions (the ideal phantom by default).
     pub conditions: Conditions,
+    /// Seed of the cameras' sensor noise alone; `None`: [`PhantomConfig::seed`].
+    pub sensor_seed: Option<u64>,
 }
 
 impl Default for PhantomConfig {
     fn default() -> Self {
         PhantomConfig {
             seed: 1,
+            sensor_seed: None,
             size: PhantomSize::Full,
             shape: ShapeParams::default(),
             oblique_deg: 0.0,
@@ -184,6 +187,8 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
     let write = |path: &Path, rgb: &[u8], camera: &crate::camera::CameraModel| {
         write_image(path, rgb, camera.width, camera.height, c.jpeg_quality).map_err(|e| io(path, e))
     };
+    // Each image's sensor noise has a seed of its own, from this one.
+    let sensor_seed = config.sensor_seed.unwrap_or(config.seed);
     let poses = board_poses(&rig, &board, config.calibration_pairs, &mut rng);
     let renderers = [Renderer::new(&rig.left), Renderer::new(&rig.right)];
     let left_pose = Isometry3::identity();
@@ -206,7 +211,7 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
                     .into_iter()
                     .enumerate()
             {
-                let seed = config.seed.wrapping_mul(1000) + 2 * index as u64 + side as u64;
+                let seed = sensor_seed.wrapping_mul(1000) + 2 * index as u64 + side as u64;
                 let params =
                     render_params((calib_ss, TextureSamples::Grid(calib_ss)), seed, camera);
                 let rgb = renderers[side].render(camera_pose, &scene, &params);
@@ -250,7 +255,7 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
                     .into_iter()
                     .enumerate()
             {
-                let seed = config.seed.wrapping_mul(7000) + 2 * index as u64 + side as u64;
+                let seed = sensor_seed.wrapping_mul(7000) + 2 * index as u64 + side as u64;
                 let params = render_params((view_ss, view_texture), seed, camera);
                 let rgb = renderers[side].render(pose, &scene, &params);
                 write(&dir.join(&names[side]), &rgb, camera)?;
@@ -280,6 +285,7 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
     let truth = GroundTruth {
         schema: SCHEMA.into(),
         seed: config.seed,
+        sensor_seed: config.sensor_seed,
         size: config.size.name().into(),
         phantom_to_mri: isometry_to_matrix(&to_mri),
         phantom_to_world: isometry_to_matrix(&to_world),

@@ -25,6 +25,10 @@ pub struct GroundTruth {
     pub schema: String,
     /// Generator seed.
     pub seed: u64,
+    /// Seed of the cameras' sensor noise, where one was given apart from
+    /// [`GroundTruth::seed`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sensor_seed: Option<u64>,
     /// `small` or `full`.
     pub size: String,
     /// The phantom's geometry in its own frame.

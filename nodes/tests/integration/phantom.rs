@@ -446,6 +446,75 @@ fn same_seed_gives_the_same_bytes_on_any_thread_count() {
     );
 }
 
+/// Another sensor seed photographs the same scene with other noise: the
+/// MRI and the truth (but for the seed it records) stay, every image
+/// changes, by the noise's size; the generator's own seed given as the
+/// sensor's changes nothing.
+#[test]
+fn a_sensor_seed_changes_the_camera_noise_alone() {
+    let config = small_seed11();
+    let t = tempfile::tempdir().unwrap();
+    let base = generate(&config, &t.path().join("base")).unwrap();
+    let with = |sensor_seed: u64, name: &str| {
+        let c = PhantomConfig {
+            sensor_seed: Some(sensor_seed),
+            ..config.clone()
+        };
+        (
+            t.path().join(name),
+            generate(&c, &t.path().join(name)).unwrap(),
+        )
+    };
+    let digest = |dir: &Path| fusegraph_engine::hash::hash_path(dir).unwrap();
+    let (same_dir, same) = with(config.seed, "same");
+    assert_eq!(same.truth.sensor_seed, Some(config.seed));
+    // The truth records the seed given; all else is byte for byte.
+    let mut truth = same.truth.clone();
+    truth.sensor_seed = None;
+    truth.save(&same_dir.join("ground_truth.json")).unwrap();
+    assert_eq!(digest(&t.path().join("base")), digest(&same_dir));
+    let (other_dir, other) = with(99, "other");
+    assert_eq!(other.truth.sensor_seed, Some(99));
+    let mut truth = other.truth.clone();
+    truth.sensor_seed = None;
+    assert_eq!(truth, base.truth);
+    assert_eq!(
+        digest(&t.path().join("base/mri")),
+        digest(&other_dir.join("mri"))
+    );
+    let read_noise_dn = config.conditions.resolved().read_noise_dn;
+    for name in [
+        "calib/left_00.png",
+        "calib/right_02.png",
+        "views/left_00.png",
+    ] {
+        let (a, b) = (
+            rgb(&t.path().join("base").join(name)),
+            rgb(&other_dir.join(name)),
+        );
+        let diffs: Vec<f64> = a
+            .as_raw()
+            .iter()
+            .zip(b.as_raw())
+            .map(|(&x, &y)| x as f64 - y as f64)
+            .collect();
+        let changed = diffs.iter().filter(|d| **d != 0.0).count();
+        assert!(
+            changed * 2 > diffs.len(),
+            "{name}: {changed} of {} changed",
+            diffs.len()
+        );
+        // Two independent realisations: their difference has sqrt(2) times
+        // the noise's deviation (to within quantisation and clipping).
+        let sd = (diffs.iter().map(|d| d * d).sum::<f64>() / diffs.len() as f64).sqrt();
+        let expected = std::f64::consts::SQRT_2 * read_noise_dn;
+        assert!(
+            (sd - expected).abs() < 0.25 * expected,
+            "{name}: difference sd {sd:.2} DN, expected {expected:.2}"
+        );
+    }
+}
+
 #[test]
 fn the_detector_finds_every_usable_board_in_the_right_order() {
     use fusegraph_nodes::calib::find_chessboard;

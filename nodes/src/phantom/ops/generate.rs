@@ -35,6 +35,11 @@ pub struct Generate {
     /// The camera session's acquisition conditions.
     #[param(flatten)]
     pub conditions: Conditions,
+    /// Seed of the cameras' sensor noise alone (0: from seed): the same
+    /// scene, poses and textures photographed again with another noise
+    /// realisation, to see how much of a figure's change is noise
+    #[param(default = 0, min = 0)]
+    pub sensor_seed: u64,
 }
 
 /// `phantom.generate` takes no inputs.
@@ -68,6 +73,7 @@ impl Generate {
             calibration_pairs: self.calibration_pairs,
             views: self.views,
             conditions: self.conditions.clone(),
+            sensor_seed: (self.sensor_seed != 0).then_some(self.sensor_seed),
         }
     }
 }

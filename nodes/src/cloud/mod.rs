@@ -1,9 +1,11 @@
 //! Point clouds (helpers of the paper's module D): nearest-neighbour search,
 //! sampling a mesh, voxel downsampling, normals by local PCA, removing the
 //! table under an object and the points near a colour, telling markers on
-//! the skin from things off it; and the `cloud.*` ops.
+//! the skin from things off it, keeping a cloud's main connected surfaces;
+//! and the `cloud.*` ops.
 
 mod colour_filter;
+mod connected;
 pub(crate) mod convert;
 mod nearest;
 mod normals;
@@ -14,6 +16,7 @@ mod sample;
 mod voxel;
 
 pub use colour_filter::away_from_colour;
+pub use connected::{connected_surfaces, keep_main_surfaces};
 pub use nearest::Nearest;
 pub use normals::{
     PLANE_COVARIANCE_EPSILON, estimate_normals, plane_covariance, plane_covariances,
@@ -32,6 +35,7 @@ pub fn register(registry: &mut Registry) -> Result<(), RegisterError> {
     registry.add::<ops::Downsample>()?;
     registry.add::<ops::RemovePlane>()?;
     registry.add::<ops::RemoveColour>()?;
+    registry.add::<ops::KeepConnected>()?;
     registry.add::<ops::MarkersOnSurface>()?;
     registry.add::<ops::Normals>()?;
     registry.add::<ops::TransformCloud>()?;

@@ -183,6 +183,25 @@ impl Nearest {
         self.points[index]
     }
 
+    /// Indices of the points within `radius_mm` of `p` (distances checked
+    /// in f64, so exactly those), in no particular order.
+    pub fn within(&self, p: &Point3<f64>, radius_mm: f64) -> Vec<usize> {
+        // The tree rounds points and the query to f32: searched a little
+        // wider, then each candidate's own distance decides.
+        let rounding_mm = 8.0 * f32::EPSILON as f64 * (p.coords.amax() + radius_mm);
+        let search = (radius_mm + rounding_mm) as f32;
+        let radius_squared = radius_mm * radius_mm;
+        self.tree
+            .query(&[p.x as f32, p.y as f32, p.z as f32])
+            .within::<SquaredEuclidean<f32>>(search * search)
+            .unsorted()
+            .execute()
+            .iter()
+            .map(|r| r.item as usize)
+            .filter(|&i| (self.points[i] - p).norm_squared() <= radius_squared)
+            .collect()
+    }
+
     /// Indices of the `k` nearest points.
     pub fn knn(&self, p: &Point3<f64>, k: usize) -> Vec<usize> {
         self.tree
@@ -209,6 +228,35 @@ mod tests {
         let near = Nearest::new(&tri).unwrap();
         assert_eq!(near.nearest(&Point3::new(9.0, 1.0, 0.0)).0, 1);
         assert!(Nearest::new(&[]).is_none());
+    }
+
+    /// Exactly the points within the radius, on a lattice where many lie
+    /// on its boundary (in f64; the tree's f32 must not lose or add any).
+    #[test]
+    fn within_finds_exactly_the_points_in_the_radius() {
+        let points: Vec<Point3<f64>> = (0..1000)
+            .map(|k| {
+                Point3::new(
+                    (k % 10) as f64,
+                    ((k / 10) % 10) as f64,
+                    (k / 100) as f64 + 500.0,
+                )
+            })
+            .collect();
+        let near = Nearest::new(&points).unwrap();
+        for (q, r) in [
+            (Point3::new(4.0, 4.0, 504.0), 1.0),
+            (Point3::new(4.0, 4.0, 504.0), 2f64.sqrt()),
+            (Point3::new(0.3, 9.1, 500.2), 2.5),
+            (Point3::new(50.0, 50.0, 50.0), 3.0),
+        ] {
+            let mut found = near.within(&q, r);
+            found.sort_unstable();
+            let expected: Vec<usize> = (0..points.len())
+                .filter(|&i| (points[i] - q).norm_squared() <= r * r)
+                .collect();
+            assert_eq!(found, expected, "{q} within {r}");
+        }
     }
 
     #[test]

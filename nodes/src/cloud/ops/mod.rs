@@ -2,6 +2,7 @@
 
 mod downsample;
 mod from_mesh;
+mod keep_connected;
 mod marker_colour;
 mod markers_on_surface;
 mod normals;
@@ -11,6 +12,7 @@ mod transform;
 
 pub use downsample::{Downsample, DownsampleInputs, DownsampleOutputs};
 pub use from_mesh::{FromMesh, FromMeshInputs, FromMeshOutputs, SampleMode};
+pub use keep_connected::{KeepConnected, KeepConnectedInputs, KeepConnectedOutputs};
 pub use marker_colour::MarkerColour;
 pub use markers_on_surface::{MarkersOnSurface, MarkersOnSurfaceInputs, MarkersOnSurfaceOutputs};
 pub use normals::{Normals, NormalsInputs, NormalsOutputs, Orient};

@@ -171,10 +171,13 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
         margin_mm: 20.0,
     };
     // Samples per axis at calibration edges and view edges, and how view
-    // texture is sampled (the board has no texture to tell apart).
+    // texture is sampled (the board has no texture to tell apart). The full
+    // phantom's texture takes its centre ray alone: paired over ten sensor
+    // seeds, the main job's TRE moved +1.5 % (standard error 0.7 %) and the
+    // camera skin's p95 +0.7 % against the quincunx, for 18 % less time.
     let (calib_ss, view_ss, view_texture) = match config.size {
         PhantomSize::Small => (2, 1, TextureSamples::Grid(1)),
-        PhantomSize::Full => (4, 3, TextureSamples::Quincunx),
+        PhantomSize::Full => (4, 3, TextureSamples::Centre),
     };
     let render_params = |(supersample, texture), seed: u64, camera| RenderParams {
         supersample,

@@ -123,6 +123,9 @@ pub struct RenderParams {
 /// sampled ([`RenderParams::texture`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum TextureSamples {
+    /// The centre's ray alone: texture is not supersampled, edges still
+    /// are (3 x 3 on the full phantom's views).
+    Centre,
     /// An n x n grid over the pixel (n at most [`RenderParams::supersample`]):
     /// n² rays besides the centre's, a box filter.
     Grid(usize),
@@ -135,7 +138,8 @@ pub enum TextureSamples {
     /// grid 0.71), 0.43 at 0.75 (the grid 0.38), 1/3 at 1 (the grid 0). On
     /// the full phantom (seeds 1-4) the main job's camera-surface RMS and
     /// TRE matched the 2 x 2 grid's within 5 %, its views rendered in 25 %
-    /// less time.
+    /// less time. (The full phantom took it in `phantom.generate` v4-v5;
+    /// v6 takes [`TextureSamples::Centre`].)
     Quincunx,
 }
 
@@ -292,7 +296,7 @@ fn render_with(
         let offsets = offsets_of(n);
         let smooth_offsets = match p.texture {
             TextureSamples::Grid(m) => offsets_of(m.clamp(1, n)),
-            TextureSamples::Quincunx => Vec::new(),
+            TextureSamples::Quincunx | TextureSamples::Centre => Vec::new(),
         };
         // Read in place: the image changes only after the pixels are classified.
         let centre = &image;
@@ -348,6 +352,7 @@ fn render_with(
             for (x, sample) in row.iter_mut().enumerate().filter(|(x, _)| differs(*x)) {
                 *sample = match near(x, y) {
                     None => PixelSamples::Edge,
+                    Some(_) if p.texture == TextureSamples::Centre => PixelSamples::Centre,
                     Some(_) => PixelSamples::Texture,
                 };
             }
@@ -618,7 +623,7 @@ mod tests {
     }
 
     #[test]
-    fn quincunx_texture_takes_a_ray_a_pixel_and_keeps_the_box_mean() {
+    fn texture_samples_cost_and_box_means() {
         let camera = camera();
         let render = |texture| {
             let scene = CosinePlane::default();
@@ -631,11 +636,14 @@ mod tests {
         let (grid, grid_rays) = render(TextureSamples::Grid(2));
         let (fine, _) = render(TextureSamples::Grid(16));
         let (centre, _) = render(TextureSamples::Grid(1));
+        let (centre_alone, centre_alone_rays) = render(TextureSamples::Centre);
         // Every pixel differs from a neighbour: the grid casts 4 rays a
-        // pixel, the quincunx one a pixel corner.
+        // pixel, the quincunx one a pixel corner, the centre alone none
+        // besides the first pass's (and gives the one-ray grid's pixels).
         let pixels = camera.width * camera.height;
         assert_eq!(grid_rays, 4 * pixels);
         assert_eq!(quincunx_rays, (camera.width + 1) * (camera.height + 1));
+        assert_eq!((centre_alone_rays, &centre_alone), (0, &centre));
         // A 4 px cosine's box mean over a pixel is sinc(1/4) = 0.90 of it:
         // the centre alone misses that by up to 0.04 (10 grey levels),
         // the quincunx (2/3 + cos(π/4)/3 = 0.902) by under a level.

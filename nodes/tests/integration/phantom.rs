@@ -575,12 +575,13 @@ fn the_detector_survives_jpeg_compression() {
 }
 
 /// The small phantom of seed 11 with 3 calibration pairs and 1 view, as
-/// `phantom.generate` v5 writes it: every condition at its default must give
+/// `phantom.generate` v5-v6 writes it: every condition at its default must give
 /// these bytes, so no cached result of the ideal phantom changes. A deliberate
 /// change of the ideal phantom bumps `phantom.generate`'s version and updates
 /// this digest. (Up to v4 these were the bytes of ebad545, from before
 /// acquisition conditions existed; v5 integrates the calibration board's edge
-/// pixels exactly, and v4's texture sampling changed only the full phantom.)
+/// pixels exactly; v4's and v6's texture sampling changed only the full
+/// phantom.)
 const IDEAL_SMALL_SEED11_DIGEST: &str =
     "7271d1dec0ccc0132ba98274f0ad87dbb86d6b74e36ccd7f9cdac4b89703aadd";
 

@@ -8,7 +8,9 @@ use fusegraph_engine::value::PathValue;
 /// Synthetic breast phantom: MRI DICOM series, stereo calibration and phantom
 /// images, ground truth
 #[derive(Debug, Clone, PartialEq, Op)]
-#[op(name = "phantom.generate", version = 5)]
+// 6: the full phantom's views take one ray where only texture differs from
+// the neighbours (edges are still supersampled): other pixels.
+#[op(name = "phantom.generate", version = 6)]
 pub struct Generate {
     /// Seed of every random choice
     #[param(default = 1, min = 0)]

@@ -174,7 +174,7 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
     // texture is sampled (the board has no texture to tell apart). The full
     // phantom's texture takes its centre ray alone: paired over ten sensor
     // seeds, the main job's TRE moved +1.5 % (standard error 0.7 %) and the
-    // camera skin's p95 +0.7 % against the quincunx, for 18 % less time.
+    // camera skin's p95 +0.7 % against the quincunx, for 17 % less time.
     let (calib_ss, view_ss, view_texture) = match config.size {
         PhantomSize::Small => (2, 1, TextureSamples::Grid(1)),
         PhantomSize::Full => (4, 3, TextureSamples::Centre),

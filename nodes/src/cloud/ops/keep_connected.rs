@@ -14,7 +14,7 @@ use fusegraph_engine::value::PointCloud;
 pub struct KeepConnected {
     /// Points this close are one surface: a few times the cloud's spacing
     /// (1 mm voxels: 3 mm), well under the gap to a floating patch
-    #[param(default = 3.0, unit = "mm", min = 0.0)]
+    #[param(default = 3.0, unit = "mm", min = 1e-3)]
     pub link_mm: f64,
     /// A surface is kept with at least this share of the largest one's
     /// points: 0.1 keeps skin cut in two by a tool's shadow, and removes
@@ -40,12 +40,6 @@ impl RunOp for KeepConnected {
     type Outputs = KeepConnectedOutputs;
 
     fn run(&self, inputs: Self::Inputs, ctx: &mut RunCtx) -> Result<Self::Outputs, OpError> {
-        if self.link_mm <= 0.0 {
-            return Err(OpError::invalid(format!(
-                "link_mm = {}: must be above 0 (points closer than it are one surface)",
-                self.link_mm
-            )));
-        }
         let c = inputs.cloud;
         let keep = keep_main_surfaces(&cloud_points(&c), self.link_mm, self.min_share);
         let kept = keep.iter().filter(|k| **k).count();
@@ -85,12 +79,12 @@ mod tests {
 
     #[test]
     fn a_link_of_zero_is_refused_and_an_empty_cloud_stays_empty() {
-        let op = KeepConnected {
-            link_mm: 0.0,
-            min_share: 0.1,
-        };
-        let e = run(op, &[[0.0; 3]]).err().unwrap().to_string();
-        assert!(e.contains("link_mm = 0: must be above 0"), "{e}");
+        let spec = fusegraph_engine::typed::spec_of::<KeepConnected>().unwrap();
+        let link = spec.params.iter().find(|p| p.name == "link_mm").unwrap();
+        let e = link
+            .parse(&toml::Value::Float(0.0), std::path::Path::new("."))
+            .unwrap_err();
+        assert!(e.contains("0 is below the minimum 0.001 mm"), "{e}");
         let op = KeepConnected {
             link_mm: 3.0,
             min_share: 0.1,

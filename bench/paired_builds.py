@@ -10,7 +10,10 @@ error (the paired differences' standard deviation over sqrt(seeds)), as a
 Markdown table. Standard library only.
 
     python3 bench/paired_builds.py OLD_FUSEGRAPH NEW_FUSEGRAPH [--seeds 1-10]
-        [--graph graphs/fusion.toml] [--out DIR]
+        [--graph graphs/fusion.toml] [--set NODE.KEY=VALUE ...] [--out DIR]
+
+`--set` goes to both builds' runs (e.g. `--set phantom.conditions='"lab"'`
+or another scene, `--set phantom.seed=2`).
 
 Each run is cold (`--no-cache`); `--out` keeps every run's folder
 (default: a temporary one).
@@ -47,9 +50,11 @@ def seeds_of(text):
     return list(range(int(first), int(last or first) + 1))
 
 
-def run(build, graph, seed, out):
-    cmd = [build, "run", graph, "--no-cache", "--set", f"phantom.sensor_seed={seed}",
-           "--out", str(out)]
+def run(build, graph, seed, sets, out):
+    cmd = [build, "run", graph, "--no-cache", "--set", f"phantom.sensor_seed={seed}"]
+    for assignment in sets:
+        cmd += ["--set", assignment]
+    cmd += ["--out", str(out)]
     done = subprocess.run(cmd, capture_output=True, text=True)
     if done.returncode != 0:
         sys.exit(f"{' '.join(cmd)} failed ({done.returncode}):\n{done.stderr[-2000:]}")
@@ -69,6 +74,8 @@ def main():
     parser.add_argument("new")
     parser.add_argument("--seeds", default="1-10", help="sensor seeds, e.g. 1-10")
     parser.add_argument("--graph", default="graphs/fusion.toml")
+    parser.add_argument("--set", action="append", default=[], metavar="NODE.KEY=VALUE",
+                        help="a parameter for both builds' runs (repeatable)")
     parser.add_argument("--out", help="keep the runs' folders here")
     args = parser.parse_args()
     seeds = seeds_of(args.seeds)
@@ -79,9 +86,10 @@ def main():
     for seed in seeds:
         # Alternating, so a slow spell of the machine falls on both.
         for which, build in (("old", args.old), ("new", args.new)):
-            runs[which][seed] = run(build, args.graph, seed, root / f"{which}_{seed}")
+            runs[which][seed] = run(build, args.graph, seed, args.set, root / f"{which}_{seed}")
         print(f"sensor seed {seed} done", file=sys.stderr)
-    print(f"{len(seeds)} sensor seeds ({args.seeds}), {args.graph}; runs in {root}\n")
+    sets = "".join(f" --set {a}" for a in args.set)
+    print(f"{len(seeds)} sensor seeds ({args.seeds}), {args.graph}{sets}; runs in {root}\n")
     print("| figure | old | new | change | its standard error |")
     print("| --- | ---: | ---: | ---: | ---: |")
     for label, node, name in FIGURES:

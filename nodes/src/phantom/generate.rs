@@ -172,9 +172,11 @@ pub fn generate(config: &PhantomConfig, dir: &Path) -> Result<Generated, String>
     };
     // Samples per axis at calibration edges and view edges, and how view
     // texture is sampled (the board has no texture to tell apart). The full
-    // phantom's texture takes its centre ray alone: paired over ten sensor
-    // seeds, the main job's TRE moved +1.5 % (standard error 0.7 %) and the
-    // camera skin's p95 +0.7 % against the quincunx, for 17 % less time.
+    // phantom's texture takes its centre ray alone, for 17 % less time.
+    // The main job's TRE against the quincunx, paired over sensor seeds
+    // (change, standard error): +1.5 % (0.7 %) on the ideal phantom of seed
+    // 1, +5.6 % (0.6 %) on seed 2, +2.6 % (3.4 %) under the lab preset;
+    // the camera skin's p95 +0.7 %, 0.0 % and -2.8 %.
     let (calib_ss, view_ss, view_texture) = match config.size {
         PhantomSize::Small => (2, 1, TextureSamples::Grid(1)),
         PhantomSize::Full => (4, 3, TextureSamples::Centre),
